@@ -1,0 +1,147 @@
+//! Image files in and out: decoding with limits, encoding by extension, atomic writes, EXIF.
+
+use crate::stack::image::{Image, Sample};
+use anyhow::{anyhow, bail, Context, Result};
+use image::{DynamicImage, ImageFormat};
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Refuse headers that claim more than this many pixels before allocating (decompression bombs).
+pub const MAX_PIXELS: u64 = 200_000_000;
+
+/// A decoded frame at its native depth.
+pub enum Decoded {
+    U8(Image<u8>),
+    U16(Image<u16>),
+}
+
+impl Decoded {
+    pub fn dimensions(&self) -> (usize, usize) {
+        match self {
+            Decoded::U8(i) => (i.width, i.height),
+            Decoded::U16(i) => (i.width, i.height),
+        }
+    }
+}
+
+/// Decodes a JPEG, PNG or TIFF file; gray stays 1 channel, anything else becomes RGB.
+pub fn load(path: &Path) -> Result<Decoded> {
+    let name = path.display();
+    let reader = image::ImageReader::open(path)
+        .with_context(|| format!("{name}: cannot open"))?
+        .with_guessed_format()
+        .with_context(|| format!("{name}: cannot read"))?;
+    if reader.format().is_none() {
+        bail!("{name}: not a JPEG, PNG or TIFF image");
+    }
+    let (w, h) = reader
+        .into_dimensions()
+        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
+    if w as u64 * h as u64 > MAX_PIXELS {
+        bail!("{name}: {w}x{h} is larger than the {MAX_PIXELS}-pixel limit");
+    }
+    let mut reader = image::ImageReader::open(path)
+        .with_context(|| format!("{name}: cannot open"))?
+        .with_guessed_format()
+        .with_context(|| format!("{name}: cannot read"))?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(w);
+    limits.max_image_height = Some(h);
+    limits.max_alloc = Some(MAX_PIXELS * 8);
+    reader.limits(limits);
+    let img = reader
+        .decode()
+        .map_err(|e| anyhow!("{name}: corrupt or truncated image: {e}"))?;
+    Ok(from_dynamic(img))
+}
+
+fn from_dynamic(img: DynamicImage) -> Decoded {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let gray = !img.color().has_color();
+    let sixteen = img.color().bytes_per_pixel() / img.color().channel_count() > 1;
+    match (sixteen, gray) {
+        (false, true) => Decoded::U8(Image::from_vec(w, h, 1, img.into_luma8().into_raw())),
+        (false, false) => Decoded::U8(Image::from_vec(w, h, 3, img.into_rgb8().into_raw())),
+        (true, true) => Decoded::U16(Image::from_vec(w, h, 1, img.into_luma16().into_raw())),
+        (true, false) => Decoded::U16(Image::from_vec(w, h, 3, img.into_rgb16().into_raw())),
+    }
+}
+
+/// The output format named by a path's extension.
+pub fn format_for(path: &Path) -> Result<ImageFormat> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    match ext.as_str() {
+        "jpg" | "jpeg" => Ok(ImageFormat::Jpeg),
+        "png" => Ok(ImageFormat::Png),
+        "tif" | "tiff" => Ok(ImageFormat::Tiff),
+        _ => bail!(
+            "{}: unknown output extension {ext:?}; use .jpg, .png or .tif",
+            path.display()
+        ),
+    }
+}
+
+/// Encodes to `format`; JPEG is 8-bit only, so 16-bit images are reduced for it.
+pub fn encode<T: Sample>(img: &Image<T>, format: ImageFormat, quality: u8) -> Result<Vec<u8>> {
+    let (w, h) = (img.width as u32, img.height as u32);
+    let dynamic = if T::MAX > 255.0 && format != ImageFormat::Jpeg {
+        let data: Vec<u16> = img.convert::<u16>().data;
+        match img.channels {
+            1 => DynamicImage::ImageLuma16(image::ImageBuffer::from_raw(w, h, data).unwrap()),
+            _ => DynamicImage::ImageRgb16(image::ImageBuffer::from_raw(w, h, data).unwrap()),
+        }
+    } else {
+        let data: Vec<u8> = img.convert::<u8>().data;
+        match img.channels {
+            1 => DynamicImage::ImageLuma8(image::ImageBuffer::from_raw(w, h, data).unwrap()),
+            _ => DynamicImage::ImageRgb8(image::ImageBuffer::from_raw(w, h, data).unwrap()),
+        }
+    };
+    let mut buf = std::io::Cursor::new(Vec::new());
+    if format == ImageFormat::Jpeg {
+        let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality);
+        dynamic.write_with_encoder(enc)?;
+    } else {
+        dynamic.write_to(&mut buf, format)?;
+    }
+    Ok(buf.into_inner())
+}
+
+/// Writes through a temporary file in the same directory and renames it into place, so a crash
+/// or a full disk never leaves a partial file under the final name.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let file_name = path
+        .file_name()
+        .ok_or_else(|| anyhow!("{}: not a file path", path.display()))?;
+    let tmp = dir.join(format!(
+        ".{}.{}.tmp",
+        file_name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = fs::remove_file(&tmp);
+        bail!("{}: cannot write: {e}", path.display());
+    }
+    Ok(())
+}
+
+/// Encodes by `path`'s extension and writes atomically.
+pub fn save<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
+    let bytes = encode(img, format_for(path)?, quality)?;
+    write_atomic(path, &bytes)
+}

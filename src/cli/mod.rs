@@ -1,0 +1,3 @@
+//! Command-line front ends over the library.
+pub mod io;
+pub mod simulate;

@@ -1,0 +1,31 @@
+use clap::{Parser, Subcommand};
+use focusd::cli;
+use std::process::ExitCode;
+
+/// Hand-held focus stacking for Linux phones.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Args {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Render a synthetic focus stack with ground truth (frames, truth, depth, transforms).
+    Simulate(cli::simulate::SimulateArgs),
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let result = match &args.command {
+        Command::Simulate(a) => cli::simulate::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("focusd: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

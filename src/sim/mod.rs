@@ -1,0 +1,1 @@
+//! Synthetic focus stacks with ground truth.

@@ -1,0 +1,182 @@
+//! In-memory frames, generic over the sample type so 8- and 16-bit stacks keep their depth.
+
+/// A pixel sample type: `u8`, `u16` or `f32` (normalised to 0..=1).
+pub trait Sample: Copy + Send + Sync + Default + 'static {
+    /// The value that stands for full scale.
+    const MAX: f32;
+    fn to_f32(self) -> f32;
+    /// Converts a value in sample units (0..=MAX), rounding and clamping.
+    fn from_f32(v: f32) -> Self;
+}
+
+impl Sample for u8 {
+    const MAX: f32 = 255.0;
+    #[inline]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+    #[inline]
+    fn from_f32(v: f32) -> Self {
+        v.round().clamp(0.0, 255.0) as u8
+    }
+}
+
+impl Sample for u16 {
+    const MAX: f32 = 65535.0;
+    #[inline]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+    #[inline]
+    fn from_f32(v: f32) -> Self {
+        v.round().clamp(0.0, 65535.0) as u16
+    }
+}
+
+impl Sample for f32 {
+    const MAX: f32 = 1.0;
+    #[inline]
+    fn to_f32(self) -> f32 {
+        self
+    }
+    #[inline]
+    fn from_f32(v: f32) -> Self {
+        v
+    }
+}
+
+/// An interleaved image: `channels` samples per pixel, rows top to bottom.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image<T> {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub data: Vec<T>,
+}
+
+/// A single-channel working plane in f32.
+pub type Plane = Image<f32>;
+
+impl<T: Sample> Image<T> {
+    pub fn new(width: usize, height: usize, channels: usize) -> Self {
+        Self::from_vec(width, height, channels, vec![T::default(); width * height * channels])
+    }
+
+    /// Panics when the buffer length does not match: a programming error, not bad input.
+    pub fn from_vec(width: usize, height: usize, channels: usize, data: Vec<T>) -> Self {
+        assert_eq!(data.len(), width * height * channels, "image buffer size");
+        Self {
+            width,
+            height,
+            channels,
+            data,
+        }
+    }
+
+    pub fn from_fn(
+        width: usize,
+        height: usize,
+        channels: usize,
+        mut f: impl FnMut(usize, usize, usize) -> T,
+    ) -> Self {
+        let mut data = Vec::with_capacity(width * height * channels);
+        for y in 0..height {
+            for x in 0..width {
+                for c in 0..channels {
+                    data.push(f(x, y, c));
+                }
+            }
+        }
+        Self::from_vec(width, height, channels, data)
+    }
+
+    pub fn pixels(&self) -> usize {
+        self.width * self.height
+    }
+
+    #[inline]
+    pub fn at(&self, x: usize, y: usize, c: usize) -> T {
+        self.data[(y * self.width + x) * self.channels + c]
+    }
+
+    pub fn same_geometry<U>(&self, other: &Image<U>) -> bool {
+        self.width == other.width && self.height == other.height && self.channels == other.channels
+    }
+
+    /// Luma (Rec. 601 weights) normalised to 0..=1: the signal every focus measure works on.
+    pub fn luma(&self) -> Plane {
+        let scale = 1.0 / T::MAX;
+        let data = match self.channels {
+            1 => self.data.iter().map(|v| v.to_f32() * scale).collect(),
+            _ => self
+                .data
+                .chunks_exact(self.channels)
+                .map(|p| {
+                    (0.299 * p[0].to_f32() + 0.587 * p[1].to_f32() + 0.114 * p[2].to_f32())
+                        * scale
+                })
+                .collect(),
+        };
+        Plane::from_vec(self.width, self.height, 1, data)
+    }
+
+    /// Splits into f32 planes normalised to 0..=1, one per channel.
+    pub fn to_planes(&self) -> Vec<Plane> {
+        let scale = 1.0 / T::MAX;
+        (0..self.channels)
+            .map(|c| {
+                let data = self
+                    .data
+                    .iter()
+                    .skip(c)
+                    .step_by(self.channels)
+                    .map(|v| v.to_f32() * scale)
+                    .collect();
+                Plane::from_vec(self.width, self.height, 1, data)
+            })
+            .collect()
+    }
+
+    /// Interleaves normalised planes back into samples of this type.
+    pub fn from_planes(planes: &[Plane]) -> Self {
+        let (w, h, n) = (planes[0].width, planes[0].height, planes.len());
+        let mut data = Vec::with_capacity(w * h * n);
+        for i in 0..w * h {
+            for p in planes {
+                data.push(T::from_f32(p.data[i] * T::MAX));
+            }
+        }
+        Self::from_vec(w, h, n, data)
+    }
+
+    /// Converts to another sample type, rescaling full scale to full scale.
+    pub fn convert<U: Sample>(&self) -> Image<U> {
+        let k = U::MAX / T::MAX;
+        Image::from_vec(
+            self.width,
+            self.height,
+            self.channels,
+            self.data.iter().map(|v| U::from_f32(v.to_f32() * k)).collect(),
+        )
+    }
+}
+
+impl Plane {
+    /// Bilinear sample with edge clamping; (x, y) in pixel-centre coordinates.
+    #[inline]
+    pub fn sample_bilinear(&self, x: f32, y: f32) -> f32 {
+        let (w, h) = (self.width as isize, self.height as isize);
+        let x0f = x.floor();
+        let y0f = y.floor();
+        let (fx, fy) = (x - x0f, y - y0f);
+        let x0 = (x0f as isize).clamp(0, w - 1) as usize;
+        let y0 = (y0f as isize).clamp(0, h - 1) as usize;
+        let x1 = (x0f as isize + 1).clamp(0, w - 1) as usize;
+        let y1 = (y0f as isize + 1).clamp(0, h - 1) as usize;
+        let r0 = y0 * self.width;
+        let r1 = y1 * self.width;
+        let top = self.data[r0 + x0] * (1.0 - fx) + self.data[r0 + x1] * fx;
+        let bot = self.data[r1 + x0] * (1.0 - fx) + self.data[r1 + x1] * fx;
+        top * (1.0 - fy) + bot * fy
+    }
+}
