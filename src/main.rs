@@ -12,6 +12,8 @@ struct Args {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Fuse a focus stack into one all-in-focus image.
+    Fuse(cli::fuse::FuseArgs),
     /// Render a synthetic focus stack with ground truth (frames, truth, depth, transforms).
     Simulate(cli::simulate::SimulateArgs),
 }
@@ -19,6 +21,7 @@ enum Command {
 fn main() -> ExitCode {
     let args = Args::parse();
     let result = match &args.command {
+        Command::Fuse(a) => cli::fuse::run(a),
         Command::Simulate(a) => cli::simulate::run(a),
     };
     match result {

@@ -59,7 +59,12 @@ pub type Plane = Image<f32>;
 
 impl<T: Sample> Image<T> {
     pub fn new(width: usize, height: usize, channels: usize) -> Self {
-        Self::from_vec(width, height, channels, vec![T::default(); width * height * channels])
+        Self::from_vec(
+            width,
+            height,
+            channels,
+            vec![T::default(); width * height * channels],
+        )
     }
 
     /// Panics when the buffer length does not match: a programming error, not bad input.
@@ -112,8 +117,7 @@ impl<T: Sample> Image<T> {
                 .data
                 .chunks_exact(self.channels)
                 .map(|p| {
-                    (0.299 * p[0].to_f32() + 0.587 * p[1].to_f32() + 0.114 * p[2].to_f32())
-                        * scale
+                    (0.299 * p[0].to_f32() + 0.587 * p[1].to_f32() + 0.114 * p[2].to_f32()) * scale
                 })
                 .collect(),
         };
@@ -156,7 +160,10 @@ impl<T: Sample> Image<T> {
             self.width,
             self.height,
             self.channels,
-            self.data.iter().map(|v| U::from_f32(v.to_f32() * k)).collect(),
+            self.data
+                .iter()
+                .map(|v| U::from_f32(v.to_f32() * k))
+                .collect(),
         )
     }
 }

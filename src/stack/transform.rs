@@ -96,7 +96,9 @@ mod tests {
         assert!(id.corner_error(&Affine::IDENTITY, 640, 480) < 1e-9);
         let (x, y) = a.apply(320.0, 240.0);
         assert!((x - 325.5).abs() < 1e-9 && (y - 237.0).abs() < 1e-9);
-        assert!(Affine([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0]]).inverse().is_none());
+        assert!(Affine([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0]])
+            .inverse()
+            .is_none());
     }
 
     #[test]

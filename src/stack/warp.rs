@@ -7,7 +7,12 @@ use rayon::prelude::*;
 /// Samples `src` at `dst_to_src(x, y)` for every pixel of a `width`×`height` output (bilinear).
 /// Returns the warped plane and a coverage mask (1 where the source point lies inside `src`, else 0;
 /// uncovered pixels take the nearest edge value so later filters see no artificial black).
-pub fn warp_affine(src: &Plane, dst_to_src: &Affine, width: usize, height: usize) -> (Plane, Plane) {
+pub fn warp_affine(
+    src: &Plane,
+    dst_to_src: &Affine,
+    width: usize,
+    height: usize,
+) -> (Plane, Plane) {
     let mut out = vec![0.0f32; width * height];
     let mut cov = vec![0.0f32; width * height];
     let (sw, sh) = (src.width as f64 - 1.0, src.height as f64 - 1.0);

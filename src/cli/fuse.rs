@@ -1,0 +1,237 @@
+//! `focusd fuse`: fuse a focus stack from image files into one all-in-focus image.
+
+use super::io::{self, Decoded};
+use super::progress::Bar;
+use crate::stack::fuse::{fuse, FuseParams, Method};
+use crate::stack::image::{Image, Sample};
+use crate::stack::metrics::tenengrad;
+use anyhow::{bail, Context, Result};
+use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MethodArg {
+    /// Graph-cut labelling with seam blending (the paper's method).
+    Graphcut,
+    /// Laplacian-pyramid max-contrast fusion (the enfuse-style baseline).
+    Pyramid,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct FuseArgs {
+    /// Output image; the format follows the extension (.jpg, .png, .tif).
+    #[arg(short, long, value_name = "OUT")]
+    pub output: PathBuf,
+    /// Input frames, nearest focus first (JPEG, PNG or TIFF, 8 or 16 bit).
+    #[arg(value_name = "FRAME")]
+    pub frames: Vec<PathBuf>,
+    /// Frame whose geometry the output takes (0-based; default: the middle frame).
+    #[arg(long, value_name = "N")]
+    pub reference: Option<usize>,
+    /// Take the frames as already registered.
+    #[arg(long)]
+    pub no_align: bool,
+    #[arg(long, value_enum, default_value = "graphcut")]
+    pub method: MethodArg,
+    /// Write the label map: frame index scaled to 0..255 (0 = first frame), 8-bit gray.
+    #[arg(long, value_name = "D.png")]
+    pub depthmap: Option<PathBuf>,
+    /// JPEG quality, 1..=100.
+    #[arg(long, default_value_t = 92, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub quality: u8,
+    /// Seam weight λ against the focus cost, 0.01..=10; higher gives fewer, smoother seams.
+    #[arg(long, default_value_t = 0.3)]
+    pub lambda: f32,
+}
+
+/// Checks every argument that can be checked before any pixel work.
+fn check_args(a: &FuseArgs) -> Result<()> {
+    if a.frames.is_empty() {
+        bail!("no input frames given; usage: focusd fuse -o OUT FRAME...");
+    }
+    if a.frames.len() == 1 {
+        bail!(
+            "{}: a focus stack needs at least 2 frames, got 1",
+            a.frames[0].display()
+        );
+    }
+    if let Some(r) = a.reference {
+        if r >= a.frames.len() {
+            bail!(
+                "--reference {r} is out of range: the stack has {} frames (0..={})",
+                a.frames.len(),
+                a.frames.len() - 1
+            );
+        }
+    }
+    if !(0.01..=10.0).contains(&a.lambda) {
+        bail!("--lambda {} is out of range 0.01..=10", a.lambda);
+    }
+    for out in std::iter::once(&a.output).chain(&a.depthmap) {
+        io::format_for(out)?;
+        let dir = match out.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        if !dir.is_dir() {
+            bail!(
+                "{}: output directory {} does not exist",
+                out.display(),
+                dir.display()
+            );
+        }
+    }
+    if a.depthmap
+        .as_ref()
+        .is_some_and(|d| io::format_for(d).ok() != Some(image::ImageFormat::Png))
+    {
+        bail!("--depthmap must be a .png file");
+    }
+    Ok(())
+}
+
+pub fn run(a: &FuseArgs) -> Result<()> {
+    check_args(a)?;
+    if !a.no_align {
+        eprintln!(
+            "focusd: registration is not implemented yet; frames are taken as aligned (--no-align)"
+        );
+    }
+    let t0 = Instant::now();
+    let decoded: Vec<Decoded> = a
+        .frames
+        .par_iter()
+        .map(|p| io::load(p))
+        .collect::<Result<_>>()?;
+    let (w, h) = decoded[0].dimensions();
+    for (d, p) in decoded.iter().zip(&a.frames).skip(1) {
+        if d.dimensions() != (w, h) {
+            let (dw, dh) = d.dimensions();
+            bail!(
+                "{}: frame is {dw}x{dh} but {} is {w}x{h}; all frames must have the same size",
+                p.display(),
+                a.frames[0].display()
+            );
+        }
+    }
+    let load_time = t0.elapsed();
+    let sixteen = decoded.iter().any(|d| matches!(d, Decoded::U16(_)));
+    if sixteen {
+        run_typed(a, decoded.into_iter().map(to_u16).collect(), load_time)
+    } else {
+        let frames = decoded
+            .into_iter()
+            .map(|d| match d {
+                Decoded::U8(i) => i,
+                Decoded::U16(_) => unreachable!("checked above"),
+            })
+            .collect();
+        run_typed(a, frames, load_time)
+    }
+}
+
+fn to_u16(d: Decoded) -> Image<u16> {
+    match d {
+        Decoded::U8(i) => i.convert(),
+        Decoded::U16(i) => i,
+    }
+}
+
+/// Gray frames in a colour stack become RGB so every frame has the same channels.
+fn match_channels<T: Sample>(frames: Vec<Image<T>>) -> Vec<Image<T>> {
+    if frames.iter().all(|f| f.channels == frames[0].channels) {
+        return frames;
+    }
+    frames
+        .into_iter()
+        .map(|f| {
+            if f.channels == 3 {
+                f
+            } else {
+                let data = f.data.iter().flat_map(|&v| [v, v, v]).collect();
+                Image::from_vec(f.width, f.height, 3, data)
+            }
+        })
+        .collect()
+}
+
+fn run_typed<T: Sample>(
+    a: &FuseArgs,
+    frames: Vec<Image<T>>,
+    load_time: std::time::Duration,
+) -> Result<()> {
+    let frames = match_channels(frames);
+    let n = frames.len();
+    let reference = a.reference.unwrap_or((n - 1) / 2);
+    let mut params = FuseParams {
+        method: match a.method {
+            MethodArg::Graphcut => Method::GraphCut,
+            MethodArg::Pyramid => Method::Pyramid,
+        },
+        ..FuseParams::default()
+    };
+    params.graphcut.lambda = a.lambda;
+    let bar = Bar::stderr();
+    let fused = fuse(&frames, &params, &bar)?;
+    bar.finish();
+
+    let t = Instant::now();
+    let mut bytes = io::encode(&fused.image, io::format_for(&a.output)?, a.quality)?;
+    if io::format_for(&a.output)? == image::ImageFormat::Jpeg {
+        bytes = with_exif_of(&a.frames[reference], bytes)?;
+    }
+    if let Some(d) = &a.depthmap {
+        let scale = 255.0 / (n - 1) as f32;
+        let depth = Image::from_vec(
+            frames[0].width,
+            frames[0].height,
+            1,
+            fused
+                .labels
+                .iter()
+                .map(|&l| (l as f32 * scale).round() as u8)
+                .collect(),
+        );
+        io::save(&depth, d, a.quality)?;
+    }
+    io::write_atomic(&a.output, &bytes)?;
+    let save_time = t.elapsed();
+
+    eprintln!(
+        "focusd: fused {n} frames of {}x{} (reference {reference})",
+        frames[0].width, frames[0].height
+    );
+    eprintln!("  time  load {:>8.1} ms", load_time.as_secs_f64() * 1e3);
+    for (stage, d) in &fused.timings {
+        eprintln!("  time  {stage:<5}{:>8.1} ms", d.as_secs_f64() * 1e3);
+    }
+    eprintln!("  time  save {:>8.1} ms", save_time.as_secs_f64() * 1e3);
+    let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
+    for (i, (s, p)) in sharp.iter().zip(&a.frames).enumerate() {
+        eprintln!("  tenengrad  frame {i:>3} {s:>8.3}  {}", p.display());
+    }
+    eprintln!(
+        "  tenengrad  output    {:>8.3}  {}",
+        tenengrad(&fused.image),
+        a.output.display()
+    );
+    Ok(())
+}
+
+/// Copies the reference frame's EXIF block into an encoded JPEG (a no-op when it has none).
+fn with_exif_of(reference: &Path, jpeg: Vec<u8>) -> Result<Vec<u8>> {
+    let src = std::fs::read(reference)
+        .with_context(|| format!("{}: cannot read", reference.display()))?;
+    let exif = match Jpeg::from_bytes(Bytes::from(src)) {
+        Ok(j) => j.exif(),
+        Err(_) => None,
+    };
+    let Some(exif) = exif else {
+        return Ok(jpeg);
+    };
+    let mut out = Jpeg::from_bytes(Bytes::from(jpeg)).context("re-reading the encoded output")?;
+    out.set_exif(Some(exif));
+    Ok(out.encoder().bytes().to_vec())
+}

@@ -1,0 +1,337 @@
+//! Graph-cut labelling of a focus stack: which frame each output pixel is copied from.
+//!
+//! Minimises Σ U(p) + λ Σ B(p,q) (the paper's eq. 4): U is the DoG focus cost normalised across the
+//! stack, B the seam cost |I_lp(p) − I_lq(p)| + |I_lp(q) − I_lq(q)| plus a small constant for any
+//! label change. Solved by α-expansion on a coarse level, then re-solved at full resolution only
+//! in a band around the coarse label boundaries and where the coarse label misses fine detail.
+
+use super::blur::downsample_area;
+use super::expansion::{expand_window, Costs, Grid, Window};
+use super::focus::{downsample_amplitude, focus_amplitude, max_amplitude, FocusParams, AMP_SCALE};
+use super::image::{Image, Sample};
+use super::maxflow::GridMaxflow;
+use super::Progress;
+use rayon::prelude::*;
+
+#[derive(Clone, Debug)]
+pub struct GraphCutParams {
+    pub focus: FocusParams,
+    /// Weight of the seam cost against the focus cost (λ in eq. 4).
+    pub lambda: f32,
+    /// Cost of any label change, in the seam cost's units: keeps flat areas from fragmenting.
+    pub kappa: f32,
+    /// DoG amplitude (luma units) that counts as texture rather than noise.
+    pub noise_floor: f32,
+    /// Pixel count the coarse level is reduced to.
+    pub coarse_pixels: usize,
+    /// Expansion cycles over all labels per window, at most.
+    pub max_cycles: usize,
+    /// Pyramid levels of the seam blending.
+    pub blend_levels: usize,
+}
+
+impl Default for GraphCutParams {
+    fn default() -> Self {
+        Self {
+            focus: FocusParams::default(),
+            lambda: 0.3,
+            kappa: 0.02,
+            noise_floor: 0.002,
+            coarse_pixels: 250_000,
+            max_cycles: 3,
+            blend_levels: 5,
+        }
+    }
+}
+
+/// One resolution level of the labelling problem.
+struct Level<'a, T> {
+    channels: usize,
+    colors: Vec<&'a [T]>,
+    amps: &'a [Vec<u16>],
+    max_amp: &'a [u16],
+    /// Integer units per unit of focus cost: channels·MAX/λ, so seam costs stay exact integers.
+    unary_scale: f32,
+    eps: f32,
+    kappa: i32,
+}
+
+impl<'a, T: Sample> Level<'a, T> {
+    fn new(
+        images: &'a [Image<T>],
+        amps: &'a [Vec<u16>],
+        max_amp: &'a [u16],
+        lambda: f32,
+        p: &GraphCutParams,
+    ) -> Self {
+        let channels = images[0].channels;
+        let full = channels as f32 * T::MAX;
+        Self {
+            channels,
+            colors: images.iter().map(|i| i.data.as_slice()).collect(),
+            amps,
+            max_amp,
+            unary_scale: full / lambda,
+            eps: p.noise_floor * AMP_SCALE,
+            kappa: (p.kappa * full).round() as i32,
+        }
+    }
+
+    fn sharpest(&self, p: usize) -> u8 {
+        let mut best = 0;
+        for l in 1..self.amps.len() {
+            if self.amps[l][p] > self.amps[best][p] {
+                best = l;
+            }
+        }
+        best as u8
+    }
+
+    #[inline]
+    fn color_diff(&self, p: usize, a: u8, b: u8) -> i32 {
+        let (ca, cb) = (self.colors[a as usize], self.colors[b as usize]);
+        let s = p * self.channels;
+        (s..s + self.channels)
+            .map(|i| (ca[i].to_f32() - cb[i].to_f32()).abs() as i32)
+            .sum()
+    }
+}
+
+impl<T: Sample> Costs for Level<'_, T> {
+    #[inline]
+    fn unary(&self, p: usize, l: u8) -> i32 {
+        let m = self.max_amp[p] as f32;
+        let a = self.amps[l as usize][p] as f32;
+        ((m - a) / (m + self.eps) * self.unary_scale) as i32
+    }
+
+    #[inline]
+    fn pairwise(&self, p: usize, q: usize, lp: u8, lq: u8) -> i32 {
+        if lp == lq {
+            return 0;
+        }
+        self.color_diff(p, lp, lq) + self.color_diff(q, lp, lq) + self.kappa
+    }
+}
+
+/// Coarse factor so the coarse level has at most `target` pixels.
+fn coarse_factor(pixels: usize, target: usize) -> usize {
+    ((pixels as f64 / target.max(1) as f64).sqrt().ceil() as usize).max(1)
+}
+
+fn downsample_image<T: Sample>(img: &Image<T>, f: usize) -> Image<T> {
+    let planes: Vec<_> = img
+        .to_planes()
+        .iter()
+        .map(|p| downsample_area(p, f))
+        .collect();
+    Image::from_planes(&planes)
+}
+
+/// Labels each pixel of an aligned stack with the index of the frame to copy it from.
+pub fn label_stack<T: Sample>(
+    frames: &[Image<T>],
+    p: &GraphCutParams,
+    progress: &dyn Progress,
+) -> Vec<u8> {
+    let (w, h) = (frames[0].width, frames[0].height);
+    progress.stage("focus", frames.len());
+    let amps: Vec<Vec<u16>> = frames
+        .iter()
+        .map(|f| {
+            let a = focus_amplitude(&f.luma(), &p.focus);
+            progress.advance(1);
+            a
+        })
+        .collect();
+    let max_amp = max_amplitude(&amps);
+    let f = coarse_factor(w * h, p.coarse_pixels);
+    let full = Level::new(frames, &amps, &max_amp, p.lambda, p);
+    if f == 1 {
+        let mut labels: Vec<u8> = (0..w * h).map(|i| full.sharpest(i)).collect();
+        solve_tiled(
+            w,
+            h,
+            &mut labels,
+            None,
+            &full,
+            256,
+            2,
+            p.max_cycles,
+            progress,
+        );
+        return labels;
+    }
+
+    // Coarse level: seam weight λ/f keeps the energy's balance (areas shrink by f², seams by f).
+    let small: Vec<Image<T>> = frames.par_iter().map(|i| downsample_image(i, f)).collect();
+    let (cw, ch) = (small[0].width, small[0].height);
+    let camps: Vec<Vec<u16>> = amps
+        .iter()
+        .map(|a| downsample_amplitude(a, w, h, f))
+        .collect();
+    let cmax = max_amplitude(&camps);
+    let coarse = Level::new(&small, &camps, &cmax, p.lambda / f as f32, p);
+    let mut clabels: Vec<u8> = (0..cw * ch).map(|i| coarse.sharpest(i)).collect();
+    solve_tiled(
+        cw,
+        ch,
+        &mut clabels,
+        None,
+        &coarse,
+        64,
+        2,
+        p.max_cycles,
+        progress,
+    );
+
+    // Full resolution: upsample, then free a band around coarse boundaries and the pixels where
+    // the coarse label is clearly not the sharp frame (detail finer than a coarse pixel).
+    let boundary = coarse_boundaries(cw, ch, &clabels);
+    let mut labels = vec![0u8; w * h];
+    let mut free = vec![false; w * h];
+    let texture = (4.0 * p.noise_floor * AMP_SCALE) as u16;
+    labels
+        .par_chunks_mut(w)
+        .zip(free.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (lrow, frow))| {
+            for x in 0..w {
+                let c = (y / f) * cw + x / f;
+                let l = clabels[c];
+                lrow[x] = l;
+                let i = y * w + x;
+                let missed = max_amp[i] > texture && 2 * amps[l as usize][i] < max_amp[i];
+                frow[x] = boundary[c] || missed;
+            }
+        });
+    solve_tiled(
+        w,
+        h,
+        &mut labels,
+        Some(&free),
+        &full,
+        64,
+        2,
+        p.max_cycles,
+        progress,
+    );
+    labels
+}
+
+/// Coarse pixels with an 8-neighbour of another label.
+fn coarse_boundaries(w: usize, h: usize, labels: &[u8]) -> Vec<bool> {
+    (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let l = labels[i];
+            (y.saturating_sub(1)..(y + 2).min(h))
+                .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| labels[yy * w + xx] != l))
+        })
+        .collect()
+}
+
+/// Runs α-expansion over tiles in parallel, `passes` times with the tile grid shifted by half a
+/// tile between passes so no tile border stays fixed.
+#[allow(clippy::too_many_arguments)]
+fn solve_tiled<T: Sample>(
+    w: usize,
+    h: usize,
+    labels: &mut [u8],
+    free: Option<&[bool]>,
+    level: &Level<T>,
+    tile: usize,
+    passes: usize,
+    max_cycles: usize,
+    progress: &dyn Progress,
+) {
+    let windows_for = |offset: usize| -> Vec<Window> {
+        let starts = |n: usize| -> Vec<usize> {
+            let mut s = vec![0];
+            let mut v = if offset > 0 && offset < n {
+                offset
+            } else {
+                tile
+            };
+            while v < n {
+                s.push(v);
+                v += tile;
+            }
+            s
+        };
+        let (xs, ys) = (starts(w), starts(h));
+        let mut out = Vec::new();
+        for (j, &y0) in ys.iter().enumerate() {
+            let y1 = ys.get(j + 1).copied().unwrap_or(h);
+            for (i, &x0) in xs.iter().enumerate() {
+                let x1 = xs.get(i + 1).copied().unwrap_or(w);
+                out.push(Window {
+                    x0,
+                    y0,
+                    w: x1 - x0,
+                    h: y1 - y0,
+                });
+            }
+        }
+        out
+    };
+    let plans: Vec<Vec<Window>> = (0..passes)
+        .map(|k| windows_for(if k % 2 == 1 { tile / 2 } else { 0 }))
+        .collect();
+    progress.stage("labels", plans.iter().map(Vec::len).sum());
+    for windows in plans {
+        let results: Vec<(Window, Vec<u8>)> = {
+            let grid = Grid {
+                width: w,
+                height: h,
+                labels,
+                free,
+            };
+            windows
+                .par_iter()
+                .map_init(GridMaxflow::new, |solver, &win| {
+                    let r = candidates(&grid, win, level).map(|c| {
+                        (
+                            win,
+                            expand_window(&grid, win, &c, level, max_cycles, solver),
+                        )
+                    });
+                    progress.advance(1);
+                    r
+                })
+                .flatten()
+                .collect()
+        };
+        for (win, out) in results {
+            for y in 0..win.h {
+                let s = (win.y0 + y) * w + win.x0;
+                labels[s..s + win.w].copy_from_slice(&out[y * win.w..(y + 1) * win.w]);
+            }
+        }
+    }
+}
+
+/// Labels worth trying in a window: those in it and on its border ring, and the sharpest frame
+/// of each free pixel. `None` when nothing in the window may change.
+fn candidates<T: Sample>(grid: &Grid, win: Window, level: &Level<T>) -> Option<Vec<u8>> {
+    let mut seen = [false; 256];
+    let mut any_free = false;
+    let (x0, y0) = (win.x0.saturating_sub(1), win.y0.saturating_sub(1));
+    let (x1, y1) = (
+        (win.x0 + win.w + 1).min(grid.width),
+        (win.y0 + win.h + 1).min(grid.height),
+    );
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let p = y * grid.width + x;
+            seen[grid.labels[p] as usize] = true;
+            let inside = x >= win.x0 && x < win.x0 + win.w && y >= win.y0 && y < win.y0 + win.h;
+            if inside && grid.free.is_none_or(|f| f[p]) {
+                any_free = true;
+                seen[level.sharpest(p) as usize] = true;
+            }
+        }
+    }
+    any_free.then(|| (0..=255u8).filter(|&l| seen[l as usize]).collect())
+}

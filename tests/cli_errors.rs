@@ -1,0 +1,200 @@
+//! Bad input to `focusd fuse`: a one-line error naming the file, a non-zero exit, no panic, and
+//! no output file left behind.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn focusd() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_focusd"))
+}
+
+fn write_png(path: &Path, w: u32, h: u32, seed: u32) {
+    let img = image::RgbImage::from_fn(w, h, |x, y| {
+        let v = ((x * 7 + y * 13 + seed * 31) % 256) as u8;
+        image::Rgb([v, v / 2, 255 - v])
+    });
+    img.save(path).unwrap();
+}
+
+struct Case {
+    dir: tempfile::TempDir,
+}
+
+impl Case {
+    fn new() -> Self {
+        Self {
+            dir: tempfile::tempdir().unwrap(),
+        }
+    }
+    fn path(&self, name: &str) -> PathBuf {
+        self.dir.path().join(name)
+    }
+    fn frames(&self, n: usize) -> Vec<PathBuf> {
+        (0..n)
+            .map(|i| {
+                let p = self.path(&format!("f{i}.png"));
+                write_png(&p, 48, 32, i as u32);
+                p
+            })
+            .collect()
+    }
+    /// Runs fuse into `out.jpg`; asserts failure and returns stderr.
+    fn fails(&self, frames: &[PathBuf], out: &Path) -> String {
+        let o = focusd()
+            .arg("fuse")
+            .arg("--no-align")
+            .arg("-o")
+            .arg(out)
+            .args(frames)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert_eq!(o.status.code(), Some(1), "exit status; stderr: {err}");
+        assert!(!err.contains("panicked"), "panic: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+        assert!(err.starts_with("focusd: error: "), "{err}");
+        assert!(!out.exists(), "output left behind");
+        let leftovers: Vec<_> = std::fs::read_dir(self.dir.path())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+            .collect();
+        assert!(leftovers.is_empty(), "temp files left: {leftovers:?}");
+        err
+    }
+}
+
+#[test]
+fn missing_file_is_named() {
+    let c = Case::new();
+    let mut f = c.frames(2);
+    f.push(c.path("nope.jpg"));
+    let err = c.fails(&f, &c.path("out.jpg"));
+    assert!(
+        err.contains("nope.jpg") && err.contains("cannot open"),
+        "{err}"
+    );
+}
+
+#[test]
+fn corrupt_and_truncated_images_are_named() {
+    let c = Case::new();
+    let f = c.frames(3);
+    let garbage = c.path("garbage.jpg");
+    std::fs::write(
+        &garbage,
+        b"\xff\xd8\xff\xe0 this is not really a jpeg at all",
+    )
+    .unwrap();
+    let err = c.fails(&[f[0].clone(), garbage], &c.path("out.jpg"));
+    assert!(
+        err.contains("garbage.jpg") && err.contains("corrupt"),
+        "{err}"
+    );
+
+    let bytes = std::fs::read(&f[1]).unwrap();
+    let cut = c.path("cut.png");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let err = c.fails(&[f[0].clone(), cut], &c.path("out.jpg"));
+    assert!(
+        err.contains("cut.png") && err.contains("corrupt or truncated"),
+        "{err}"
+    );
+
+    let text = c.path("notes.txt");
+    std::fs::write(&text, "hello").unwrap();
+    let err = c.fails(&[f[0].clone(), text], &c.path("out.jpg"));
+    assert!(
+        err.contains("notes.txt") && err.contains("not a JPEG, PNG or TIFF"),
+        "{err}"
+    );
+}
+
+#[test]
+fn frames_of_different_sizes_are_named() {
+    let c = Case::new();
+    let mut f = c.frames(2);
+    let odd = c.path("odd.png");
+    write_png(&odd, 40, 32, 9);
+    f.push(odd);
+    let err = c.fails(&f, &c.path("out.png"));
+    assert!(
+        err.contains("odd.png") && err.contains("40x32") && err.contains("48x32"),
+        "{err}"
+    );
+}
+
+#[test]
+fn one_frame_and_no_frames_are_refused() {
+    let c = Case::new();
+    let f = c.frames(1);
+    let err = c.fails(&f, &c.path("out.jpg"));
+    assert!(
+        err.contains("f0.png") && err.contains("at least 2 frames"),
+        "{err}"
+    );
+    let err = c.fails(&[], &c.path("out.jpg"));
+    assert!(err.contains("no input frames"), "{err}");
+}
+
+#[test]
+fn unwritable_output_is_refused_before_work() {
+    let c = Case::new();
+    let f = c.frames(2);
+    let err = c.fails(&f, &c.path("missing-dir/out.jpg"));
+    assert!(
+        err.contains("missing-dir") && err.contains("does not exist"),
+        "{err}"
+    );
+    // A parent that is a file: the write itself fails, and nothing is left behind.
+    let file = c.path("plain");
+    std::fs::write(&file, "x").unwrap();
+    let err = c.fails(&f, &file.join("out.jpg"));
+    assert!(err.contains("out.jpg"), "{err}");
+    let err = c.fails(&f, &c.path("out.bmp"));
+    assert!(
+        err.contains("out.bmp") && err.contains(".jpg, .png or .tif"),
+        "{err}"
+    );
+}
+
+#[test]
+fn reference_out_of_range_is_refused() {
+    let c = Case::new();
+    let f = c.frames(3);
+    let o = focusd()
+        .args(["fuse", "--no-align", "--reference", "3", "-o"])
+        .arg(c.path("out.png"))
+        .args(&f)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        err.contains("--reference 3") && err.contains("0..=2"),
+        "{err}"
+    );
+}
+
+#[test]
+fn good_stack_writes_output_and_depthmap_of_reference_size() {
+    let c = Case::new();
+    let f = c.frames(3);
+    let (out, dm) = (c.path("out.tif"), c.path("depth.png"));
+    let o = focusd()
+        .args(["fuse", "--no-align", "-o"])
+        .arg(&out)
+        .arg("--depthmap")
+        .arg(&dm)
+        .args(&f)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::open(&out).unwrap();
+    assert_eq!((img.width(), img.height()), (48, 32));
+    let d = image::open(&dm).unwrap();
+    assert_eq!(d.color(), image::ColorType::L8);
+    assert_eq!((d.width(), d.height()), (48, 32));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("tenengrad") && err.contains("time"), "{err}");
+}

@@ -1,0 +1,135 @@
+//! Fusion quality against ground truth on the committed aligned synthetic stacks.
+
+use focusd::cli::io::{load, Decoded};
+use focusd::stack::focus::{focus_amplitude, FocusParams, AMP_SCALE};
+use focusd::stack::fuse::{fuse, FuseParams, Method};
+use focusd::stack::image::Image;
+use focusd::stack::metrics::psnr;
+use focusd::stack::NoProgress;
+use std::path::Path;
+
+fn load_u8(p: &Path) -> Image<u8> {
+    match load(p).unwrap() {
+        Decoded::U8(i) => i,
+        Decoded::U16(_) => panic!("{}: expected 8-bit", p.display()),
+    }
+}
+
+struct Stack {
+    frames: Vec<Image<u8>>,
+    truth: Image<u8>,
+    /// True plane index per pixel.
+    depth: Vec<u8>,
+}
+
+fn stack(name: &str) -> Stack {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("sim-data")
+        .join(name);
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with("frame_")
+        })
+        .collect();
+    files.sort();
+    let frames: Vec<_> = files.iter().map(|p| load_u8(p)).collect();
+    let n = frames.len();
+    let depth = load_u8(&dir.join("depth.png"))
+        .data
+        .iter()
+        .map(|&v| (v as f32 * (n - 1) as f32 / 255.0).round() as u8)
+        .collect();
+    Stack {
+        frames,
+        truth: load_u8(&dir.join("truth.png")),
+        depth,
+    }
+}
+
+/// Pixels where the truth has texture: the only places a focus measure can tell depth.
+fn textured(truth: &Image<u8>) -> Vec<bool> {
+    focus_amplitude(&truth.luma(), &FocusParams::default())
+        .iter()
+        .map(|&a| a as f32 / AMP_SCALE > 0.01)
+        .collect()
+}
+
+fn oracle(s: &Stack) -> Image<u8> {
+    let mut o = s.truth.clone();
+    let ch = o.channels;
+    for (p, &d) in s.depth.iter().enumerate() {
+        o.data[p * ch..p * ch + ch]
+            .copy_from_slice(&s.frames[d as usize].data[p * ch..p * ch + ch]);
+    }
+    o
+}
+
+fn check_stack(name: &str) {
+    let s = stack(name);
+    let gc = fuse(&s.frames, &FuseParams::default(), &NoProgress).unwrap();
+    let pyr = fuse(
+        &s.frames,
+        &FuseParams {
+            method: Method::Pyramid,
+            ..FuseParams::default()
+        },
+        &NoProgress,
+    )
+    .unwrap();
+    let p_gc = psnr(&gc.image, &s.truth, 0);
+    let p_pyr = psnr(&pyr.image, &s.truth, 0);
+    let p_oracle = psnr(&oracle(&s), &s.truth, 0);
+    let p_frames: Vec<f64> = s.frames.iter().map(|f| psnr(f, &s.truth, 0)).collect();
+    let tex = textured(&s.truth);
+    let (hit, total) = gc
+        .labels
+        .iter()
+        .zip(&s.depth)
+        .zip(&tex)
+        .filter(|(_, &t)| t)
+        .fold((0, 0), |(h, t), ((l, d), _)| (h + (l == d) as usize, t + 1));
+    let acc = hit as f64 / total as f64;
+    eprintln!(
+        "{name}: graphcut {p_gc:.2} dB, pyramid {p_pyr:.2} dB, oracle {p_oracle:.2} dB, \
+         frames {p_frames:.2?}, depth accuracy {:.1}% of {total} textured pixels",
+        acc * 100.0
+    );
+    for (i, p) in p_frames.iter().enumerate() {
+        assert!(
+            p_gc > *p,
+            "{name}: graphcut {p_gc:.2} dB does not beat frame {i} ({p:.2} dB)"
+        );
+    }
+    assert!(
+        p_gc > p_pyr,
+        "{name}: graphcut {p_gc:.2} dB does not beat pyramid {p_pyr:.2} dB"
+    );
+    assert!(
+        p_gc > p_oracle - 1.0,
+        "{name}: graphcut {p_gc:.2} dB is more than 1 dB below the depth oracle {p_oracle:.2} dB"
+    );
+    assert!(
+        total > s.depth.len() / 4,
+        "{name}: too few textured pixels to judge"
+    );
+    assert!(
+        acc >= 0.9,
+        "{name}: depth map right on only {:.1}% of textured pixels",
+        acc * 100.0
+    );
+}
+
+#[test]
+fn aligned_stack_beats_inputs_and_baseline() {
+    check_stack("aligned");
+}
+
+#[test]
+fn small_aligned_stack_beats_inputs_and_baseline() {
+    check_stack("small");
+}
