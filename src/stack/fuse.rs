@@ -116,3 +116,33 @@ pub fn fuse<T: Sample>(
         timings,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stack::NoProgress;
+
+    #[test]
+    fn bad_stacks_are_refused_with_the_reason() {
+        let f = |w, h, c| Image::<u8>::new(w, h, c);
+        let fuse = |frames: &[Image<u8>]| fuse(frames, &FuseParams::default(), &NoProgress).err();
+        assert_eq!(fuse(&[]), Some(FuseError::NoFrames));
+        assert_eq!(fuse(&[f(16, 16, 3)]), Some(FuseError::OneFrame));
+        assert_eq!(
+            fuse(&[f(16, 16, 3), f(16, 16, 3), f(16, 12, 3)]),
+            Some(FuseError::Mismatch {
+                frame: 2,
+                expected: (16, 16, 3),
+                got: (16, 12, 3)
+            })
+        );
+        assert_eq!(
+            fuse(&[f(4, 16, 1), f(4, 16, 1)]),
+            Some(FuseError::TooSmall(4, 16))
+        );
+        assert_eq!(
+            fuse(&vec![f(8, 8, 1); 256]),
+            Some(FuseError::TooManyFrames(256))
+        );
+    }
+}
