@@ -312,24 +312,32 @@ fn solve_tiled<T: Sample>(
     }
 }
 
-/// Labels worth trying in a window: those in it and on its border ring, and the sharpest frame
-/// of each free pixel. `None` when nothing in the window may change.
+/// Labels worth trying in a window: those of its free pixels and their neighbours, and the
+/// sharpest frame of each free pixel. `None` when nothing in the window may change.
 fn candidates<T: Sample>(grid: &Grid, win: Window, level: &Level<T>) -> Option<Vec<u8>> {
     let mut seen = [false; 256];
     let mut any_free = false;
-    let (x0, y0) = (win.x0.saturating_sub(1), win.y0.saturating_sub(1));
-    let (x1, y1) = (
-        (win.x0 + win.w + 1).min(grid.width),
-        (win.y0 + win.h + 1).min(grid.height),
-    );
-    for y in y0..y1 {
-        for x in x0..x1 {
-            let p = y * grid.width + x;
+    let (gw, gh) = (grid.width, grid.height);
+    for y in win.y0..win.y0 + win.h {
+        for x in win.x0..win.x0 + win.w {
+            let p = y * gw + x;
+            if !grid.free.is_none_or(|f| f[p]) {
+                continue;
+            }
+            any_free = true;
+            seen[level.sharpest(p) as usize] = true;
             seen[grid.labels[p] as usize] = true;
-            let inside = x >= win.x0 && x < win.x0 + win.w && y >= win.y0 && y < win.y0 + win.h;
-            if inside && grid.free.is_none_or(|f| f[p]) {
-                any_free = true;
-                seen[level.sharpest(p) as usize] = true;
+            if x > 0 {
+                seen[grid.labels[p - 1] as usize] = true;
+            }
+            if x + 1 < gw {
+                seen[grid.labels[p + 1] as usize] = true;
+            }
+            if y > 0 {
+                seen[grid.labels[p - gw] as usize] = true;
+            }
+            if y + 1 < gh {
+                seen[grid.labels[p + gw] as usize] = true;
             }
         }
     }
