@@ -1,7 +1,7 @@
-//! α-expansion (Boykov, Veksler, Zabih) over windows of a label grid.
+//! α-expansion (Boykov, Veksler, Zabih) over a label grid with some pixels held fixed.
 //!
-//! A window is solved on its own with the pixels around it held fixed, so windows that do not
-//! overlap can be solved in parallel from one snapshot of the labels.
+//! Callers solve a window as its own small grid with a ring of fixed pixels around it, so windows
+//! that do not overlap can be solved in parallel from one snapshot of the labels.
 
 use super::maxflow::GridMaxflow;
 
@@ -32,15 +32,6 @@ pub fn energy(width: usize, height: usize, labels: &[u8], c: &impl Costs) -> i64
     e
 }
 
-/// A rectangle of the grid.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Window {
-    pub x0: usize,
-    pub y0: usize,
-    pub w: usize,
-    pub h: usize,
-}
-
 /// The grid being labelled: its size, the current labels and which pixels may change.
 pub struct Grid<'a> {
     pub width: usize,
@@ -48,12 +39,6 @@ pub struct Grid<'a> {
     pub labels: &'a [u8],
     /// `None`: every pixel may change.
     pub free: Option<&'a [bool]>,
-}
-
-impl Grid<'_> {
-    fn is_free(&self, p: usize) -> bool {
-        self.free.is_none_or(|f| f[p])
-    }
 }
 
 /// Adds `cost1 - cost0` for "takes α" as terminal capacities (a constant is dropped).
@@ -67,37 +52,27 @@ fn add_unary(g: &mut GridMaxflow, i: usize, cost0: i32, cost1: i32) {
     }
 }
 
-/// Runs expansion cycles over `candidates` inside `win` until a cycle changes nothing or
-/// `max_cycles` is reached; returns the window's new labels (row-major, `win.w`×`win.h`).
-pub fn expand_window(
+/// Runs expansion cycles over `candidates` until a cycle changes nothing or `max_cycles` is
+/// reached; returns the new labels. Pixels that are not free keep their labels and act as fixed
+/// boundary conditions for their free neighbours.
+pub fn expand(
     grid: &Grid,
-    win: Window,
     candidates: &[u8],
     costs: &impl Costs,
     max_cycles: usize,
     solver: &mut GridMaxflow,
 ) -> Vec<u8> {
-    let gw = grid.width;
-    let mut cur: Vec<u8> = (0..win.h)
-        .flat_map(|y| {
-            let s = (win.y0 + y) * gw + win.x0;
-            grid.labels[s..s + win.w].iter().copied()
-        })
-        .collect();
-    let free: Vec<bool> = (0..win.w * win.h)
-        .map(|i| grid.is_free((win.y0 + i / win.w) * gw + win.x0 + i % win.w))
-        .collect();
-    // Sparse windows (a band around seams) visit only their free pixels.
-    let free_idx: Vec<u32> = (0..free.len() as u32)
-        .filter(|&i| free[i as usize])
+    let mut cur = grid.labels.to_vec();
+    let n = grid.width * grid.height;
+    // Sparse grids (a band around seams) visit only their free pixels.
+    let free_idx: Vec<u32> = (0..n as u32)
+        .filter(|&i| grid.free.is_none_or(|f| f[i as usize]))
         .collect();
     for _ in 0..max_cycles {
         let mut changed = false;
         for &alpha in candidates {
             let m = Move {
                 grid,
-                win,
-                free: &free,
                 free_idx: &free_idx,
                 alpha,
             };
@@ -114,8 +89,6 @@ pub fn expand_window(
 /// minimises the energy (exactly, by a minimum cut).
 struct Move<'a> {
     grid: &'a Grid<'a>,
-    win: Window,
-    free: &'a [bool],
     free_idx: &'a [u32],
     alpha: u8,
 }
@@ -123,88 +96,65 @@ struct Move<'a> {
 impl Move<'_> {
     /// Returns whether any label changed.
     fn run(&self, cur: &mut [u8], costs: &impl Costs, g: &mut GridMaxflow) -> bool {
-        let (win, alpha) = (self.win, self.alpha);
-        let (gw, gh) = (self.grid.width, self.grid.height);
-        let var = |i: usize, cur: &[u8]| self.free[i] && cur[i] != alpha;
+        let alpha = self.alpha;
+        let (w, h) = (self.grid.width, self.grid.height);
+        let var = |i: usize, cur: &[u8]| self.grid.free.is_none_or(|f| f[i]) && cur[i] != alpha;
         if !self.free_idx.iter().any(|&i| cur[i as usize] != alpha) {
             return false;
         }
-        g.reset(win.w, win.h);
-        for &i in self.free_idx {
-            let i = i as usize;
-            let lp = cur[i];
+        g.reset(w, h);
+        for &p in self.free_idx {
+            let p = p as usize;
+            let lp = cur[p];
             if lp == alpha {
                 continue;
             }
-            let (lx, ly) = (i % win.w, i / win.w);
-            let (x, y) = (win.x0 + lx, win.y0 + ly);
-            let p = y * gw + x;
-            add_unary(g, i, costs.unary(p, lp), costs.unary(p, alpha));
-            // (neighbour exists, global q, local index if inside the window, right/down edge)
+            let (x, y) = (p % w, p / w);
+            add_unary(g, p, costs.unary(p, lp), costs.unary(p, alpha));
+            // (neighbour exists, q, right/down edge)
             let nbrs = [
-                (
-                    x + 1 < gw,
-                    p + 1,
-                    (lx + 1 < win.w).then(|| i + 1),
-                    Some(true),
-                ),
-                (
-                    y + 1 < gh,
-                    p + gw,
-                    (ly + 1 < win.h).then(|| i + win.w),
-                    Some(false),
-                ),
-                (
-                    x > 0,
-                    p.wrapping_sub(1),
-                    (lx > 0).then(|| i.wrapping_sub(1)),
-                    None,
-                ),
-                (
-                    y > 0,
-                    p.wrapping_sub(gw),
-                    (ly > 0).then(|| i.wrapping_sub(win.w)),
-                    None,
-                ),
+                (x + 1 < w, p + 1, Some(true)),
+                (y + 1 < h, p + w, Some(false)),
+                (x > 0, p.wrapping_sub(1), None),
+                (y > 0, p.wrapping_sub(w), None),
             ];
-            for (exists, q, j, forward) in nbrs {
+            for (exists, q, forward) in nbrs {
                 if !exists {
                     continue;
                 }
-                let lq = j.map_or(self.grid.labels[q], |j| cur[j]);
-                match j.filter(|&j| var(j, cur)) {
+                let lq = cur[q];
+                if var(q, cur) {
                     // Both free: the edge is added once, from its left/top end.
-                    Some(j) => {
-                        if let Some(right) = forward {
-                            // E(xp, xq) = A + (C-A)xp + (D-C)xq + (B+C-A-D)(1-xp)xq, D = 0.
-                            let a = costs.pairwise(p, q, lp, lq);
-                            let b = costs.pairwise(p, q, lp, alpha);
-                            let c = costs.pairwise(p, q, alpha, lq);
-                            add_unary(g, i, 0, c - a);
-                            add_unary(g, j, 0, -c);
-                            let cap = (b + c - a).max(0);
-                            if right {
-                                g.add_right(i, cap, 0);
-                            } else {
-                                g.add_down(i, cap, 0);
-                            }
+                    if let Some(right) = forward {
+                        // E(xp, xq) = A + (C-A)xp + (D-C)xq + (B+C-A-D)(1-xp)xq, D = 0.
+                        let a = costs.pairwise(p, q, lp, lq);
+                        let b = costs.pairwise(p, q, lp, alpha);
+                        let c = costs.pairwise(p, q, alpha, lq);
+                        add_unary(g, p, 0, c - a);
+                        add_unary(g, q, 0, -c);
+                        let cap = (b + c - a).max(0);
+                        if right {
+                            g.add_right(p, cap, 0);
+                        } else {
+                            g.add_down(p, cap, 0);
                         }
                     }
-                    None => add_unary(
+                } else {
+                    add_unary(
                         g,
-                        i,
+                        p,
                         costs.pairwise(p, q, lp, lq),
                         costs.pairwise(p, q, alpha, lq),
-                    ),
+                    );
                 }
             }
         }
         g.maxflow();
         let mut changed = false;
-        for &i in self.free_idx {
-            let i = i as usize;
-            if cur[i] != alpha && g.in_sink(i) {
-                cur[i] = alpha;
+        for &p in self.free_idx {
+            let p = p as usize;
+            if cur[p] != alpha && g.in_sink(p) {
+                cur[p] = alpha;
                 changed = true;
             }
         }
@@ -272,7 +222,6 @@ mod tests {
             );
             let c = random_problem(&mut rng, w, h, n);
             let mut labels: Vec<u8> = (0..w * h).map(|_| rng.below(n as u64) as u8).collect();
-            let win = Window { x0: 0, y0: 0, w, h };
             let cands: Vec<u8> = (0..n as u8).collect();
             let mut e = energy(w, h, &labels, &c);
             for _ in 0..3 {
@@ -283,7 +232,7 @@ mod tests {
                         labels: &labels,
                         free: None,
                     };
-                    let next = expand_window(&grid, win, &[a], &c, 1, &mut solver);
+                    let next = expand(&grid, &[a], &c, 1, &mut solver);
                     let e2 = energy(w, h, &next, &c);
                     assert!(e2 <= e, "trial {trial}: move on {a} raised {e} to {e2}");
                     // The move is optimal: no labelling reachable by one α-move is cheaper.
@@ -315,18 +264,12 @@ mod tests {
     }
 
     #[test]
-    fn fixed_pixels_and_windows_keep_outside_labels() {
+    fn fixed_pixels_keep_their_labels() {
         let mut rng = Rng(77);
         let (w, h, n) = (9, 7, 4);
         let c = random_problem(&mut rng, w, h, n);
         let labels: Vec<u8> = (0..w * h).map(|_| rng.below(n as u64) as u8).collect();
         let free: Vec<bool> = (0..w * h).map(|i| i % 3 != 0).collect();
-        let win = Window {
-            x0: 2,
-            y0: 1,
-            w: 5,
-            h: 4,
-        };
         let grid = Grid {
             width: w,
             height: h,
@@ -334,17 +277,16 @@ mod tests {
             free: Some(&free),
         };
         let cands: Vec<u8> = (0..n as u8).collect();
-        let out = expand_window(&grid, win, &cands, &c, 5, &mut GridMaxflow::new());
-        let mut merged = labels.clone();
-        for y in 0..win.h {
-            for x in 0..win.w {
-                let p = (win.y0 + y) * w + win.x0 + x;
-                if !free[p] {
-                    assert_eq!(out[y * win.w + x], labels[p]);
-                }
-                merged[p] = out[y * win.w + x];
+        let out = expand(&grid, &cands, &c, 5, &mut GridMaxflow::new());
+        for p in 0..w * h {
+            if !free[p] {
+                assert_eq!(out[p], labels[p]);
             }
         }
-        assert!(energy(w, h, &merged, &c) <= energy(w, h, &labels, &c));
+        assert_ne!(
+            out, labels,
+            "some free pixel should move on a random problem"
+        );
+        assert!(energy(w, h, &out, &c) < energy(w, h, &labels, &c));
     }
 }

@@ -6,7 +6,7 @@
 //! in a band around the coarse label boundaries and where the coarse label misses fine detail.
 
 use super::blur::downsample_area;
-use super::expansion::{expand_window, Costs, Grid, Window};
+use super::expansion::{expand, Costs, Grid};
 use super::focus::{downsample_amplitude, focus_amplitude, max_amplitude, FocusParams, AMP_SCALE};
 use super::image::{Image, Sample};
 use super::maxflow::GridMaxflow;
@@ -87,22 +87,83 @@ impl<'a, T: Sample> Level<'a, T> {
         best as u8
     }
 
-    #[inline]
-    fn color_diff(&self, p: usize, a: u8, b: u8) -> i32 {
-        let (ca, cb) = (self.colors[a as usize], self.colors[b as usize]);
-        let s = p * self.channels;
-        (s..s + self.channels)
-            .map(|i| (ca[i].to_f32() - cb[i].to_f32()).abs() as i32)
-            .sum()
-    }
-}
-
-impl<T: Sample> Costs for Level<'_, T> {
+    /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
     #[inline]
     fn unary(&self, p: usize, l: u8) -> i32 {
         let m = self.max_amp[p] as f32;
         let a = self.amps[l as usize][p] as f32;
         ((m - a) / (m + self.eps) * self.unary_scale) as i32
+    }
+}
+
+/// One tile's problem gathered into contiguous memory: the costs of the few labels worth trying,
+/// for the tile and a ring of fixed pixels around it. Reading ten full-size frames at scattered
+/// addresses for every edge of every move is what made the solve slow.
+struct TileCosts<T> {
+    /// Label → slot in the tables below.
+    slot: [u8; 256],
+    slots: usize,
+    channels: usize,
+    /// `[pixel][slot][channel]` colours.
+    colors: Vec<T>,
+    /// `[pixel][slot]` focus costs.
+    unary: Vec<i32>,
+    kappa: i32,
+}
+
+impl<T: Sample> TileCosts<T> {
+    /// Gathers the rectangle `(x0, y0, w, h)` of `level` for `labels`.
+    fn gather(
+        level: &Level<T>,
+        width: usize,
+        rect: (usize, usize, usize, usize),
+        labels: &[u8],
+    ) -> Self {
+        let (x0, y0, w, h) = rect;
+        let mut slot = [u8::MAX; 256];
+        for (k, &l) in labels.iter().enumerate() {
+            slot[l as usize] = k as u8;
+        }
+        let (ns, ch) = (labels.len(), level.channels);
+        let mut colors = Vec::with_capacity(w * h * ns * ch);
+        let mut unary = Vec::with_capacity(w * h * ns);
+        for y in y0..y0 + h {
+            for x in x0..x0 + w {
+                let p = y * width + x;
+                for &l in labels {
+                    colors.extend_from_slice(&level.colors[l as usize][p * ch..p * ch + ch]);
+                    unary.push(level.unary(p, l));
+                }
+            }
+        }
+        Self {
+            slot,
+            slots: ns,
+            channels: ch,
+            colors,
+            unary,
+            kappa: level.kappa,
+        }
+    }
+
+    #[inline]
+    fn color_diff(&self, p: usize, a: u8, b: u8) -> i32 {
+        let ch = self.channels;
+        let base = p * self.slots;
+        let ia = (base + self.slot[a as usize] as usize) * ch;
+        let ib = (base + self.slot[b as usize] as usize) * ch;
+        self.colors[ia..ia + ch]
+            .iter()
+            .zip(&self.colors[ib..ib + ch])
+            .map(|(x, y)| (x.to_f32() - y.to_f32()).abs() as i32)
+            .sum()
+    }
+}
+
+impl<T: Sample> Costs for TileCosts<T> {
+    #[inline]
+    fn unary(&self, p: usize, l: u8) -> i32 {
+        self.unary[p * self.slots + self.slot[l as usize] as usize]
     }
 
     #[inline]
@@ -280,23 +341,27 @@ fn solve_tiled<T: Sample>(
         .map(|k| windows_for(if k % 2 == 1 { tile / 2 } else { 0 }))
         .collect();
     progress.stage("labels", plans.iter().map(Vec::len).sum());
-    for windows in plans {
+    // After the first pass each tile is optimal for its fixed borders, so later passes only
+    // re-solve the strips along the first pass's tile borders.
+    let reach = tile / 4;
+    let near_border = |v: usize| v % tile < reach || v % tile >= tile - reach;
+    let strips: Vec<bool> = (0..w * h)
+        .into_par_iter()
+        .map(|p| free.is_none_or(|f| f[p]) && (near_border(p % w) || near_border(p / w)))
+        .collect();
+    for (k, windows) in plans.into_iter().enumerate() {
         let results: Vec<(Window, Vec<u8>)> = {
             let grid = Grid {
                 width: w,
                 height: h,
                 labels,
-                free,
+                free: if k == 0 { free } else { Some(&strips) },
             };
             windows
                 .par_iter()
                 .map_init(GridMaxflow::new, |solver, &win| {
-                    let r = candidates(&grid, win, level).map(|c| {
-                        (
-                            win,
-                            expand_window(&grid, win, &c, level, max_cycles, solver),
-                        )
-                    });
+                    let r = candidates(&grid, win, level)
+                        .map(|c| (win, solve_window(&grid, win, &c, level, max_cycles, solver)));
                     progress.advance(1);
                     r
                 })
@@ -310,6 +375,57 @@ fn solve_tiled<T: Sample>(
             }
         }
     }
+}
+
+/// A rectangle of the label grid.
+#[derive(Clone, Copy, Debug)]
+struct Window {
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+}
+
+/// Solves one window as its own grid, with a ring of fixed pixels around it; returns the
+/// window's new labels.
+fn solve_window<T: Sample>(
+    grid: &Grid,
+    win: Window,
+    candidates: &[u8],
+    level: &Level<T>,
+    max_cycles: usize,
+    solver: &mut GridMaxflow,
+) -> Vec<u8> {
+    let (gw, gh) = (grid.width, grid.height);
+    let (rx0, ry0) = (win.x0.saturating_sub(1), win.y0.saturating_sub(1));
+    let (rx1, ry1) = ((win.x0 + win.w + 1).min(gw), (win.y0 + win.h + 1).min(gh));
+    let (rw, rh) = (rx1 - rx0, ry1 - ry0);
+    let mut labels = Vec::with_capacity(rw * rh);
+    let mut free = Vec::with_capacity(rw * rh);
+    for y in ry0..ry1 {
+        labels.extend_from_slice(&grid.labels[y * gw + rx0..y * gw + rx1]);
+        for x in rx0..rx1 {
+            let inside =
+                (win.x0..win.x0 + win.w).contains(&x) && (win.y0..win.y0 + win.h).contains(&y);
+            free.push(inside && grid.free.is_none_or(|f| f[y * gw + x]));
+        }
+    }
+    let costs = TileCosts::gather(level, gw, (rx0, ry0, rw, rh), candidates);
+    let local = Grid {
+        width: rw,
+        height: rh,
+        labels: &labels,
+        free: Some(&free),
+    };
+    let out = expand(&local, candidates, &costs, max_cycles, solver);
+    let (ox, oy) = (win.x0 - rx0, win.y0 - ry0);
+    (0..win.h)
+        .flat_map(|y| {
+            out[(oy + y) * rw + ox..(oy + y) * rw + ox + win.w]
+                .iter()
+                .copied()
+        })
+        .collect()
 }
 
 /// Labels worth trying in a window: those of its free pixels and their neighbours, and the
