@@ -37,7 +37,7 @@ impl Default for GraphCutParams {
             lambda: 0.3,
             kappa: 0.02,
             noise_floor: 0.002,
-            coarse_pixels: 250_000,
+            coarse_pixels: 60_000,
             max_cycles: 3,
             blend_levels: 5,
         }
