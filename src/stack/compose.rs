@@ -10,9 +10,11 @@
 //!   across a seam the transition is multiband, so no seam shows, and at an occlusion edge the
 //!   crisp edge's coefficients win over the other frame's defocus spill.
 
-use super::blur::gaussian_blur;
+use super::blur::{blur_rows_into, gaussian_half, strip_rows, PlaneRows, RowBlur, Rows};
 use super::image::{Image, Plane, Sample};
-use super::pyramid::{collapse, gaussian_pyramid, laplacian_pyramid, levels_for};
+use super::pyramid::{
+    collapse_of, fill_gaussian, fill_laplacian, levels_for, with_levels, zeros_like,
+};
 use super::Progress;
 use rayon::prelude::*;
 
@@ -28,46 +30,74 @@ pub enum Select<'a> {
     Labels(&'a [u8], usize),
 }
 
-/// Where one frame may be chosen at each band level, and the weight of its residual.
-struct Eligibility {
-    present: Option<Vec<Plane>>,
-    residual_weight: Plane,
+/// One frame's pyramids. The buffers are refilled for every frame, so only the first frame pays
+/// for allocating and page-faulting them.
+struct FrameBuffers {
+    /// The Laplacian pyramid of each channel.
+    bands: Vec<Vec<Plane>>,
+    /// `Select::Labels` only (else empty): the Gaussian pyramid of the frame's label mask, and
+    /// its level 0 blurred to the finest band's reach.
+    mask: Vec<Plane>,
+    reach: Plane,
 }
 
-fn eligibility(
-    select: &Select,
-    i: usize,
-    n: usize,
-    w: usize,
-    h: usize,
-    levels: usize,
-) -> Eligibility {
-    match select {
-        Select::MaxContrast => {
-            let mut g = gaussian_pyramid(&Plane::new(w, h, 1), levels);
-            let top = g.pop().expect("at least one level");
-            let weight = Plane::from_fn(top.width, top.height, 1, |_, _, _| 1.0 / n as f32);
-            Eligibility {
-                present: None,
-                residual_weight: weight,
+impl FrameBuffers {
+    fn new(w: usize, h: usize, channels: usize, levels: usize, labels: bool) -> Self {
+        let pyramid = || with_levels(Plane::new(w, h, 1), levels);
+        let bands: Vec<Vec<Plane>> = (0..channels).map(|_| pyramid()).collect();
+        let (mask, reach) = match labels {
+            true => (pyramid(), Plane::new(w, h, 1)),
+            false => (Vec::new(), Plane::new(0, 0, 1)),
+        };
+        Self { bands, mask, reach }
+    }
+
+    /// Builds frame `i`'s pyramids and, for `Select::Labels`, where it may be chosen.
+    fn fill<T: Sample>(&mut self, frame: &Image<T>, select: &Select, i: usize) {
+        // `Image::to_planes` in one parallel pass.
+        let (n, scale) = (frame.channels, 1.0 / T::MAX);
+        let (levels0, strip) = (
+            self.bands.iter_mut().map(|b| &mut b[0].data[..]),
+            strip_rows(frame.height) * frame.width,
+        );
+        chunk_groups(levels0, strip)
+            .into_par_iter()
+            .zip(frame.data.par_chunks(strip * n))
+            .for_each(|(planes, px)| {
+                for (c, plane) in planes.into_iter().enumerate() {
+                    for (o, px) in plane.iter_mut().zip(px.chunks_exact(n)) {
+                        *o = px[c].to_f32() * scale;
+                    }
+                }
+            });
+        // Channels in parallel too: the coarse levels are too small to occupy every thread.
+        self.bands.par_iter_mut().for_each(|b| fill_laplacian(b));
+        if let Select::Labels(labels, _) = select {
+            let m0 = &mut self.mask[0].data;
+            m0.par_iter_mut()
+                .zip(*labels)
+                .for_each(|(m, &l)| *m = (l as usize == i) as u8 as f32);
+            fill_gaussian(&mut self.mask);
+            if self.mask.len() > 1 {
+                let (r, m0) = (&mut self.reach, &self.mask[0]);
+                let half = gaussian_half(FINE_REACH);
+                blur_rows_into(&mut r.data, r.width, r.height, &half, || PlaneRows(m0));
             }
         }
-        Select::Labels(labels, _) => {
-            let data = labels
-                .par_iter()
-                .map(|&l| (l as usize == i) as u8 as f32)
-                .collect();
-            let mask = Plane::from_vec(w, h, 1, data);
-            let mut g = gaussian_pyramid(&mask, levels);
-            let residual_weight = g.pop().expect("at least one level");
-            if let Some(g0) = g.first_mut() {
-                *g0 = gaussian_blur(g0, FINE_REACH);
-            }
-            Eligibility {
-                present: Some(g),
-                residual_weight,
-            }
+    }
+
+    /// Where the frame may be chosen at band level `l` (`None`: everywhere).
+    fn present(&self, l: usize) -> Option<&[f32]> {
+        match (l, self.mask.is_empty()) {
+            (_, true) => None,
+            (0, false) => Some(&self.reach.data),
+            (_, false) => Some(&self.mask[l].data),
         }
+    }
+
+    /// The weight of the frame's residual (`None`: the plain average, 1/n).
+    fn residual_weight(&self) -> Option<&[f32]> {
+        self.mask.last().map(|m| &m.data[..])
     }
 }
 
@@ -93,92 +123,160 @@ pub fn compose<T: Sample>(
         }
     };
     progress.stage("compose", used.len());
-    let mut out: Vec<Vec<Plane>> = Vec::new();
-    let mut best: Vec<Plane> = Vec::new();
+    let labels = matches!(select, Select::Labels(..));
+    let mut frame = FrameBuffers::new(w, h, frames[0].channels, levels, labels);
+    let mut out: Vec<Vec<Plane>> = frame.bands.iter().map(|b| zeros_like(b)).collect();
+    let mut best: Vec<Plane> = frame.bands[0][..top]
+        .iter()
+        .map(|b| Plane::from_vec(b.width, b.height, 1, vec![-1.0; b.pixels()]))
+        .collect();
     let mut choice = vec![0u8; w * h];
     for &i in &used {
-        let bands: Vec<Vec<Plane>> = frames[i]
-            .to_planes()
-            .iter()
-            .map(|p| laplacian_pyramid(p, levels))
-            .collect();
-        let energy = band_energy(&bands, top);
-        let elig = eligibility(&select, i, n, w, h, levels);
-        if out.is_empty() {
-            out = bands
-                .iter()
-                .map(|b| b.iter().map(|p| Plane::new(p.width, p.height, 1)).collect())
-                .collect();
-            best = energy
-                .iter()
-                .map(|e| Plane::from_fn(e.width, e.height, 1, |_, _, _| -1.0))
-                .collect();
+        frame.fill(&frames[i], &select, i);
+        for (l, best) in best.iter_mut().enumerate() {
+            let out = out.iter_mut().map(|o| &mut o[l].data[..]).collect();
+            let choice = (l == 0).then_some(&mut choice[..]);
+            select_level(&frame, l, best, out, choice, i as u8);
         }
-        for l in 0..top {
-            let present = elig.present.as_ref().map(|g| &g[l].data);
-            let take: Vec<bool> = best[l]
-                .data
-                .par_iter_mut()
-                .zip(&energy[l].data)
-                .enumerate()
-                .map(|(p, (b, &e))| {
-                    let t = e > *b && present.is_none_or(|g| g[p] > PRESENT);
-                    if t {
-                        *b = e;
-                    }
-                    t
-                })
-                .collect();
-            if l == 0 {
-                choice
-                    .iter_mut()
-                    .zip(&take)
-                    .filter(|(_, &t)| t)
-                    .for_each(|(c, _)| *c = i as u8);
+        for (o, b) in out.iter_mut().zip(&frame.bands) {
+            let (o, v) = (&mut o[top].data, &b[top].data);
+            match frame.residual_weight() {
+                Some(m) => (o, v, m).into_par_iter().for_each(|(o, v, m)| *o += v * m),
+                None => {
+                    let m = 1.0 / n as f32;
+                    o.par_iter_mut().zip(v).for_each(|(o, v)| *o += v * m);
+                }
             }
-            for (o, b) in out.iter_mut().zip(&bands) {
-                o[l].data
-                    .par_iter_mut()
-                    .zip(&b[l].data)
-                    .zip(&take)
-                    .for_each(|((o, &v), &t)| {
-                        if t {
-                            *o = v;
-                        }
-                    });
-            }
-        }
-        for (o, b) in out.iter_mut().zip(&bands) {
-            o[top]
-                .data
-                .par_iter_mut()
-                .zip(&b[top].data)
-                .zip(&elig.residual_weight.data)
-                .for_each(|((o, v), m)| *o += v * m);
         }
         progress.advance(1);
     }
-    let planes: Vec<Plane> = out.iter().map(|pyr| collapse(pyr)).collect();
-    (Image::from_planes(&planes), choice)
+    let planes: Vec<Plane> = out.into_par_iter().map(collapse_of).collect();
+    (interleave(&planes), choice)
 }
 
-/// Local energy of the luma band at each level but the residual (luma bands are the same linear
-/// mix of the colour bands as luma is of the colours).
-fn band_energy(bands: &[Vec<Plane>], top: usize) -> Vec<Plane> {
-    (0..top)
-        .map(|l| {
-            let data: Vec<f32> = if bands.len() == 1 {
-                bands[0][l].data.par_iter().map(|v| v.abs()).collect()
-            } else {
-                (&bands[0][l].data, &bands[1][l].data, &bands[2][l].data)
-                    .into_par_iter()
-                    .map(|(r, g, b)| (0.299 * r + 0.587 * g + 0.114 * b).abs())
-                    .collect()
-            };
-            let (bw, bh) = (bands[0][l].width, bands[0][l].height);
-            gaussian_blur(&Plane::from_vec(bw, bh, 1, data), 1.0)
-        })
+/// Takes each coefficient of band level `l` from `frame` into `out` where its band energy
+/// (blurred |luma band|) beats the `best` so far and the frame is present, and records `label`
+/// in `choice`. The energy streams strip by strip instead of being stored, and blocks of
+/// pixels the frame does not win are neither read nor written.
+fn select_level(
+    frame: &FrameBuffers,
+    l: usize,
+    best: &mut Plane,
+    out: Vec<&mut [f32]>,
+    choice: Option<&mut [u8]>,
+    label: u8,
+) {
+    let (w, h) = (best.width, best.height);
+    let strip = strip_rows(h) * w;
+    let bands: Vec<&[f32]> = frame.bands.iter().map(|b| &b[l].data[..]).collect();
+    let present = frame.present(l);
+    let half = gaussian_half(1.0);
+    let outs = chunk_groups(out, strip);
+    let choices: Vec<Option<&mut [u8]>> = match choice {
+        Some(c) => c.chunks_mut(strip).map(Some).collect(),
+        None => outs.iter().map(|_| None).collect(),
+    };
+    (outs, choices, best.data.par_chunks_mut(strip))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(s, (mut outs, mut choice, best))| {
+            let mut energy = RowBlur::new(AbsLuma(bands.clone()), w, h, &half);
+            let (mut e, mut take) = (vec![0.0f32; w], vec![0u32; w]);
+            for (r, best) in best.chunks_exact_mut(w).enumerate() {
+                let y = s * strip / w + r;
+                energy.row(y, &mut e);
+                // All ones where this frame's coefficient is taken.
+                let wins = take.iter_mut().zip(&e).zip(&*best);
+                match present {
+                    Some(g) => {
+                        for (((t, &e), &b), &g) in wins.zip(&g[y * w..][..w]) {
+                            *t = 0u32.wrapping_sub(((e > b) & (g > PRESENT)) as u32);
+                        }
+                    }
+                    None => wins.for_each(|((t, &e), &b)| *t = 0u32.wrapping_sub((e > b) as u32)),
+                }
+                for (j, t) in take.chunks(BLOCK).enumerate() {
+                    if t.iter().all(|&t| t == 0) {
+                        continue;
+                    }
+                    let x = j * BLOCK..j * BLOCK + t.len();
+                    blend(&mut best[x.clone()], &e[x.clone()], t);
+                    let (row, at) = (
+                        r * w + x.start..r * w + x.end,
+                        y * w + x.start..y * w + x.end,
+                    );
+                    for (o, band) in outs.iter_mut().zip(&bands) {
+                        blend(&mut o[row.clone()], &band[at.clone()], t);
+                    }
+                    if let Some(c) = choice.as_mut() {
+                        for (c, &t) in c[row].iter_mut().zip(t) {
+                            *c = (label & t as u8) | (*c & !t as u8);
+                        }
+                    }
+                }
+            }
+        });
+}
+
+/// Pixels per block that `select_level` skips when the frame wins none of them: a cache line
+/// of f32.
+const BLOCK: usize = 16;
+
+/// `dst = src` where the mask `take` is all ones. Bitwise, because a plain `if` on two loaded
+/// values compiles to a pointer select that does not vectorise.
+#[inline(always)]
+fn blend(dst: &mut [f32], src: &[f32], take: &[u32]) {
+    for ((d, s), &m) in dst.iter_mut().zip(src).zip(take) {
+        *d = f32::from_bits((s.to_bits() & m) | (d.to_bits() & !m));
+    }
+}
+
+/// Splits equally long buffers into chunks and groups the chunks by position, so one parallel
+/// job can write the same pixels of several planes.
+fn chunk_groups<'a, T>(
+    bufs: impl IntoIterator<Item = &'a mut [T]>,
+    size: usize,
+) -> Vec<Vec<&'a mut [T]>> {
+    let mut chunks: Vec<_> = bufs.into_iter().map(|b| b.chunks_mut(size)).collect();
+    let jobs = chunks.first().map_or(0, ExactSizeIterator::len);
+    (0..jobs)
+        .map(|_| chunks.iter_mut().map(|c| c.next().unwrap()).collect())
         .collect()
+}
+
+/// `Image::from_planes`, parallel over rows.
+fn interleave<T: Sample>(planes: &[Plane]) -> Image<T> {
+    let (w, h, n) = (planes[0].width, planes[0].height, planes.len());
+    let mut data = vec![T::default(); w * h * n];
+    data.par_chunks_mut(w * n).enumerate().for_each(|(y, row)| {
+        for (x, px) in row.chunks_exact_mut(n).enumerate() {
+            for (s, p) in px.iter_mut().zip(planes) {
+                *s = T::from_f32(p.data[y * w + x] * T::MAX);
+            }
+        }
+    });
+    Image::from_vec(w, h, n, data)
+}
+
+/// Rows of |luma| of one band level's colour bands (luma bands are the same linear mix of the
+/// colour bands as luma is of the colours); a single band is its own luma.
+struct AbsLuma<'a>(Vec<&'a [f32]>);
+
+impl Rows for AbsLuma<'_> {
+    fn row(&mut self, y: usize, out: &mut [f32]) {
+        let w = out.len();
+        let band = |c: usize| &self.0[c][y * w..][..w];
+        if self.0.len() == 1 {
+            for (o, v) in out.iter_mut().zip(band(0)) {
+                *o = v.abs();
+            }
+        } else {
+            let rgb = band(0).iter().zip(band(1)).zip(band(2));
+            for (o, ((r, g), b)) in out.iter_mut().zip(rgb) {
+                *o = (0.299 * r + 0.587 * g + 0.114 * b).abs();
+            }
+        }
+    }
 }
 
 #[cfg(test)]

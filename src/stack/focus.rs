@@ -1,6 +1,6 @@
 //! Per-pixel focus measure: local energy of a difference of Gaussians (the paper's unary term).
 
-use super::blur::{downsample_area, gaussian_blur};
+use super::blur::{downsample_area, gaussian_half, par_strips, PlaneRows, RowBlur, Rows};
 use super::image::Plane;
 use rayon::prelude::*;
 
@@ -29,21 +29,59 @@ impl Default for FocusParams {
 pub const AMP_SCALE: f32 = 65535.0;
 
 /// RMS DoG response around each pixel, quantised to u16 (see `AMP_SCALE`).
+///
+/// One streaming pass: the two blurs feed DoG² rows straight into the window blur, whose rows
+/// are quantised as they come, so the only full-size buffer is the result.
 pub fn focus_amplitude(luma: &Plane, p: &FocusParams) -> Vec<u16> {
-    let fine = gaussian_blur(luma, p.sigma_fine);
-    let coarse = gaussian_blur(luma, p.sigma_coarse);
-    let mut dog = fine;
-    dog.data
-        .par_iter_mut()
-        .zip(&coarse.data)
-        .for_each(|(f, c)| *f = (*f - c) * (*f - c));
-    drop(coarse);
-    let energy = gaussian_blur(&dog, p.window);
-    energy
-        .data
-        .par_iter()
-        .map(|e| (e.max(0.0).sqrt() * AMP_SCALE).round().min(65535.0) as u16)
-        .collect()
+    let (w, h) = (luma.width, luma.height);
+    let (fine, coarse, window) = (
+        gaussian_half(p.sigma_fine),
+        gaussian_half(p.sigma_coarse),
+        gaussian_half(p.window),
+    );
+    let mut amp = vec![0u16; w * h];
+    par_strips(&mut amp, w, h, |y0, strip| {
+        let dog = DogSquared {
+            fine: RowBlur::new(PlaneRows(luma), w, h, &fine),
+            coarse: RowBlur::new(PlaneRows(luma), w, h, &coarse),
+            tmp: vec![0.0; w],
+        };
+        let mut energy = RowBlur::new(dog, w, h, &window);
+        let mut row = vec![0.0; w];
+        for (y, out) in (y0..).zip(strip.chunks_exact_mut(w)) {
+            energy.row(y, &mut row);
+            for (a, e) in out.iter_mut().zip(&row) {
+                *a = quantise(e.max(0.0).sqrt() * AMP_SCALE);
+            }
+        }
+    });
+    amp
+}
+
+/// `v.round().min(65535.0) as u16` for v ≥ 0, exactly, with a truncating cast: `f32::round`
+/// is a libm call on baseline x86-64 and would keep the loop scalar.
+#[inline(always)]
+fn quantise(v: f32) -> u16 {
+    let v = v.min(65535.0);
+    let t = v as i32;
+    (t + (v - t as f32 >= 0.5) as i32) as u16
+}
+
+/// Rows of the squared difference of two blurs of the same plane.
+struct DogSquared<'k, 'a> {
+    fine: RowBlur<'k, PlaneRows<'a>>,
+    coarse: RowBlur<'k, PlaneRows<'a>>,
+    tmp: Vec<f32>,
+}
+
+impl Rows for DogSquared<'_, '_> {
+    fn row(&mut self, y: usize, out: &mut [f32]) {
+        self.fine.row(y, out);
+        self.coarse.row(y, &mut self.tmp);
+        for (f, c) in out.iter_mut().zip(&self.tmp) {
+            *f = (*f - c) * (*f - c);
+        }
+    }
 }
 
 /// Area-downsamples a u16 amplitude map by `factor`.
@@ -68,6 +106,7 @@ pub fn max_amplitude(amps: &[Vec<u16>]) -> Vec<u16> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stack::blur::gaussian_blur;
 
     #[test]
     fn sharper_texture_has_higher_amplitude() {
@@ -83,5 +122,54 @@ mod tests {
         );
         assert!(a > 3.0 * b, "sharp {a} vs soft {b}");
         assert!(b > c && c == 0.0);
+    }
+
+    #[test]
+    fn quantise_rounds_half_away_like_round() {
+        // Neighbouring floats by their bits (positive floats order like their bit patterns).
+        let step = |x: f32, d: i32| f32::from_bits(x.to_bits().wrapping_add_signed(d));
+        let mut v = 0.0f32;
+        while v < 70000.0 {
+            for x in [v, v + 0.5, step(v, 1), step(v + 0.5, -1), step(v + 0.5, 1)] {
+                assert_eq!(quantise(x), x.round().min(65535.0) as u16, "{x}");
+            }
+            v += 0.75;
+        }
+        assert_eq!(quantise(f32::INFINITY), 65535);
+    }
+
+    #[test]
+    fn streamed_amplitude_matches_blur_composition() {
+        let luma = Plane::from_fn(83, 141, 1, |x, y, _| ((x * x + 3 * y) % 17) as f32 / 17.0);
+        for p in [
+            FocusParams::default(),
+            FocusParams {
+                sigma_fine: 0.0,
+                sigma_coarse: 1.3,
+                window: 0.0,
+            },
+        ] {
+            let (fine, coarse) = (
+                gaussian_blur(&luma, p.sigma_fine),
+                gaussian_blur(&luma, p.sigma_coarse),
+            );
+            let dog: Vec<f32> = fine
+                .data
+                .iter()
+                .zip(&coarse.data)
+                .map(|(f, c)| (f - c) * (f - c))
+                .collect();
+            let energy = gaussian_blur(&Plane::from_vec(83, 141, 1, dog), p.window);
+            let want = energy
+                .data
+                .iter()
+                .map(|e| (e.max(0.0).sqrt() * AMP_SCALE).round() as i32);
+            let err = focus_amplitude(&luma, &p)
+                .iter()
+                .zip(want)
+                .map(|(&a, b)| (a as i32 - b).abs())
+                .max();
+            assert!(err <= Some(1), "max error {err:?}");
+        }
     }
 }
