@@ -206,7 +206,7 @@ pub(crate) fn collapse_of(mut pyr: Vec<Plane>) -> Plane {
     let mut acc = pyr.pop().expect("at least one level");
     while let Some(mut band) = pyr.pop() {
         let (w, h) = (band.width, band.height);
-        expand_with(&acc, w, h, &mut band.data, |b, u| *b = u + *b);
+        expand_with(&acc, w, h, &mut band.data, |b, u| *b += u);
         acc = band;
     }
     acc
