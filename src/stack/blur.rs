@@ -164,24 +164,55 @@ impl<S: Rows> Rows for RowBlur<'_, S> {
     }
 }
 
-/// Pixels per register block of `symmetric_sum`: enough independent accumulators to hide the
-/// add latency, few enough to stay in registers.
-const LANES: usize = 16;
-
 /// `out[x] = half[0]·src[c + x] + Σⱼ half[j]·(src[lo[j-1] + x] + src[hi[j-1] + x])`.
 ///
 /// Taps are whole shifted rows (offsets into `src`), so one kernel serves the horizontal pass
 /// (shifted windows of a padded row) and the vertical one (rows of the ring). Each block of
-/// `LANES` pixels sums all taps in registers before one store.
+/// pixels sums all its taps in registers before one store. A block is eight vector registers
+/// wide, so eight independent add chains hide the add latency: 32 pixels with SSE2 (the x86-64
+/// baseline), 64 with AVX, which is worth detecting at run time (a quarter less time).
 fn symmetric_sum(out: &mut [f32], src: &[f32], half: &[f32], c: usize, lo: &[usize], hi: &[usize]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX, checked just above.
+        return unsafe { symmetric_sum_avx(out, src, half, c, lo, hi) };
+    }
+    symmetric_sum_body::<32>(out, src, half, c, lo, hi)
+}
+
+/// `symmetric_sum_body` compiled for AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn symmetric_sum_avx(
+    out: &mut [f32],
+    src: &[f32],
+    half: &[f32],
+    c: usize,
+    lo: &[usize],
+    hi: &[usize],
+) {
+    symmetric_sum_body::<64>(out, src, half, c, lo, hi)
+}
+
+/// `symmetric_sum` with blocks of `LANES` pixels; inlined so each caller compiles it for its own
+/// target features.
+#[inline(always)]
+fn symmetric_sum_body<const LANES: usize>(
+    out: &mut [f32],
+    src: &[f32],
+    half: &[f32],
+    c: usize,
+    lo: &[usize],
+    hi: &[usize],
+) {
     let n = out.len();
     let (k0, ks) = (half[0], &half[1..]);
     let mut blocks = out.chunks_exact_mut(LANES);
     for (i, o) in blocks.by_ref().enumerate() {
         let x = i * LANES;
-        let mut acc = block(src, c + x).map(|v| k0 * v);
+        let mut acc = block::<LANES>(src, c + x).map(|v| k0 * v);
         for ((&k, &l), &r) in ks.iter().zip(lo).zip(hi) {
-            let (a, b) = (block(src, l + x), block(src, r + x));
+            let (a, b) = (block::<LANES>(src, l + x), block::<LANES>(src, r + x));
             for ((s, &a), &b) in acc.iter_mut().zip(a).zip(b) {
                 *s += k * (a + b);
             }
@@ -199,7 +230,7 @@ fn symmetric_sum(out: &mut [f32], src: &[f32], half: &[f32], c: usize, lo: &[usi
 }
 
 #[inline(always)]
-fn block(src: &[f32], at: usize) -> &[f32; LANES] {
+fn block<const LANES: usize>(src: &[f32], at: usize) -> &[f32; LANES] {
     src[at..at + LANES].try_into().unwrap()
 }
 
@@ -289,6 +320,18 @@ mod tests {
                 assert!(err < 1e-5, "{w}x{h} sigma {sigma}: max error {err}");
             }
         }
+    }
+
+    #[test]
+    fn block_widths_agree_exactly() {
+        // The SSE2 and AVX block widths must give the same bits; run both on any machine.
+        let src: Vec<f32> = (0..300).map(|i| ((i * 37) % 101) as f32 / 101.0).collect();
+        let half = gaussian_half(2.0);
+        let (lo, hi): (Vec<usize>, Vec<usize>) = (1..half.len()).map(|j| (6 - j, 6 + j)).unzip();
+        let (mut a, mut b) = (vec![0.0; 288], vec![0.0; 288]);
+        symmetric_sum_body::<32>(&mut a, &src, &half, 6, &lo, &hi);
+        symmetric_sum_body::<64>(&mut b, &src, &half, 6, &lo, &hi);
+        assert_eq!(a, b);
     }
 
     #[test]

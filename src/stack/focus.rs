@@ -58,13 +58,17 @@ pub fn focus_amplitude(luma: &Plane, p: &FocusParams) -> Vec<u16> {
     amp
 }
 
-/// `v.round().min(65535.0) as u16` for v ≥ 0, exactly, with a truncating cast: `f32::round`
-/// is a libm call on baseline x86-64 and would keep the loop scalar.
+/// `v.round().min(65535.0) as u16` for v ≥ 0, exactly, in operations that vectorise
+/// (`f32::round` is a libm call on baseline x86-64, and float-to-int casts saturate lane by
+/// lane): adding 2²³ leaves the integer nearest v, ties to even, in the mantissa; ties that went
+/// down are then moved up, as `round` takes them away from zero.
 #[inline(always)]
 fn quantise(v: f32) -> u16 {
+    const TWO_23: f32 = 8_388_608.0;
     let v = v.min(65535.0);
-    let t = v as i32;
-    (t + (v - t as f32 >= 0.5) as i32) as u16
+    let r = v + TWO_23;
+    let tie_down = (v - (r - TWO_23) == 0.5) as u32;
+    ((r.to_bits() & 0x7f_ffff) + tie_down) as u16
 }
 
 /// Rows of the squared difference of two blurs of the same plane.

@@ -1,0 +1,43 @@
+//! Pixel kernels on one 3 MP plane (2048x1536), the size of a phone frame, to track the costs
+//! that dominate a fuse apart from the graph cut.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use focusd::stack::blur::gaussian_blur;
+use focusd::stack::focus::{focus_amplitude, FocusParams};
+use focusd::stack::image::Plane;
+use focusd::stack::pyramid::{collapse, laplacian_pyramid, levels_for};
+use std::hint::black_box;
+
+/// Deterministic texture with edges and noise, so no kernel sees a flat (cache-friendly) input.
+fn plane(width: usize, height: usize) -> Plane {
+    Plane::from_fn(width, height, 1, |x, y, _| {
+        let h = (x as u32).wrapping_mul(0x9e37_79b9) ^ (y as u32).wrapping_mul(0x85eb_ca6b);
+        let noise = (h >> 24) as f32 / 2550.0;
+        let stripes = if (x / 7 + y / 5) % 2 == 0 { 0.3 } else { 0.7 };
+        stripes + noise
+    })
+}
+
+fn bench_kernels(c: &mut Criterion) {
+    let (w, h) = (2048, 1536);
+    let p = plane(w, h);
+    let mut g = c.benchmark_group("kernels_3MP");
+    g.sample_size(20);
+    g.bench_function("gaussian_blur_sigma2", |b| {
+        b.iter(|| gaussian_blur(black_box(&p), 2.0))
+    });
+    let fp = FocusParams::default();
+    g.bench_function("focus_amplitude", |b| {
+        b.iter(|| focus_amplitude(black_box(&p), &fp))
+    });
+    let levels = levels_for(w, h);
+    g.bench_function("laplacian_pyramid", |b| {
+        b.iter(|| laplacian_pyramid(black_box(&p), levels))
+    });
+    let pyr = laplacian_pyramid(&p, levels);
+    g.bench_function("collapse", |b| b.iter(|| collapse(black_box(&pyr))));
+    g.finish();
+}
+
+criterion_group!(benches, bench_kernels);
+criterion_main!(benches);
