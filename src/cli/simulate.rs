@@ -47,6 +47,9 @@ pub struct SimulateArgs {
     /// Per-frame gain jitter: gains uniform in 1±this (0..=0.5; reference keeps 1).
     #[arg(long, default_value_t = 0.0)]
     pub gain_jitter: f64,
+    /// Per-frame, per-channel white-balance jitter: channel gains uniform in 1±this (0..=0.5).
+    #[arg(long, default_value_t = 0.0)]
+    pub wb_jitter: f64,
     /// Sensor read-noise sigma in 8-bit units, plus shot noise (0..=50).
     #[arg(long, default_value_t = 1.5, value_name = "SIGMA")]
     pub noise: f64,
@@ -82,6 +85,7 @@ impl SimulateArgs {
             max_rotation_deg: self.max_rotation,
             breathing: self.breathing,
             gain_jitter: self.gain_jitter,
+            wb_jitter: self.wb_jitter,
             noise_sigma: self.noise,
             parallax_px: self.parallax,
             blur_per_plane: self.blur_per_plane,
@@ -159,9 +163,15 @@ pub fn command_line(p: &SimParams, quality: u32, dir: &Path) -> String {
         );
     }
     s += &format!(
-        " --gain-jitter {} --noise {} --blur-per-plane {} --max-blur {} --near-diopters {} \
-         --far-diopters {} --quality {quality}",
-        p.gain_jitter, p.noise_sigma, p.blur_per_plane, p.max_blur, p.near_diopters, p.far_diopters
+        " --gain-jitter {} --wb-jitter {} --noise {} --blur-per-plane {} --max-blur {} \
+         --near-diopters {} --far-diopters {} --quality {quality}",
+        p.gain_jitter,
+        p.wb_jitter,
+        p.noise_sigma,
+        p.blur_per_plane,
+        p.max_blur,
+        p.near_diopters,
+        p.far_diopters
     );
     s
 }

@@ -43,6 +43,9 @@ pub struct SimParams {
     pub breathing: f64,
     /// Per-frame gain uniformly in 1 ± gain_jitter (the reference frame keeps gain 1).
     pub gain_jitter: f64,
+    /// Per-frame, per-channel white-balance gain uniformly in 1 ± wb_jitter, on top of the gain
+    /// (the reference frame keeps 1, 1, 1).
+    pub wb_jitter: f64,
     /// Gaussian read noise sigma in 8-bit units; shot noise adds variance noise_sigma²·v/255 at
     /// signal level v, so at full scale the total noise is √2·noise_sigma.
     pub noise_sigma: f64,
@@ -73,6 +76,7 @@ impl Default for SimParams {
             max_rotation_deg: 1.5,
             breathing: 0.02,
             gain_jitter: 0.0,
+            wb_jitter: 0.0,
             noise_sigma: 1.5,
             parallax_px: 1.0,
             blur_per_plane: 2.0,
@@ -123,6 +127,7 @@ impl SimParams {
         within("max_rotation_deg", self.max_rotation_deg, 0.0, 10.0)?;
         within("breathing", self.breathing, 0.0, 0.2)?;
         within("gain_jitter", self.gain_jitter, 0.0, 0.5)?;
+        within("wb_jitter", self.wb_jitter, 0.0, 0.5)?;
         within("noise_sigma", self.noise_sigma, 0.0, 50.0)?;
         within("parallax_px", self.parallax_px, 0.0, 2.0)?;
         within("max_blur", self.max_blur, 0.5, 30.0)?;
@@ -153,6 +158,8 @@ pub struct FrameInfo {
     pub focus_diopters: f64,
     /// Multiplicative exposure gain applied to the frame.
     pub gain: f64,
+    /// Per-channel white-balance gain applied on top of `gain`.
+    pub white_balance: [f64; 3],
     /// Pose parameters of `ref_to_frame` (translation px, roll degrees, scale).
     pub translation: [f64; 2],
     pub rotation_deg: f64,

@@ -25,6 +25,7 @@ use rayon::prelude::*;
 /// RNG streams besides the scene's (see `scene::STREAM_SCENE`).
 pub const STREAM_POSES: u64 = 2;
 pub const STREAM_GAINS: u64 = 3;
+pub const STREAM_WHITE_BALANCE: u64 = 4;
 /// Frame i's noise uses stream `STREAM_NOISE + i`.
 pub const STREAM_NOISE: u64 = 1000;
 
@@ -330,6 +331,18 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
         q.round().clamp(0.0, q_far) as u8
     });
 
+    let mut wb_rng = Rng::stream(p.seed, STREAM_WHITE_BALANCE);
+    let white_balance: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let wb = std::array::from_fn(|_| 1.0 + p.wb_jitter * (2.0 * wb_rng.uniform() - 1.0));
+            if i == reference {
+                [1.0; 3]
+            } else {
+                wb
+            }
+        })
+        .collect();
+
     let tmax = p.max_shift * w as f64;
     let mut frames = Vec::with_capacity(n);
     let mut info = Vec::with_capacity(n);
@@ -379,10 +392,12 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
             .iter()
             .map(|c| warp_affine(c, &frame_to_canvas, w, h).0)
             .collect();
-        frames.push(expose(&warped, gains[i], p.noise_sigma, p.seed, i));
+        let gain = white_balance[i].map(|b| b * gains[i]);
+        frames.push(expose(&warped, gain, p.noise_sigma, p.seed, i));
         info.push(FrameInfo {
             focus_diopters: optics.focus_diopters(i),
             gain: gains[i],
+            white_balance: white_balance[i],
             translation: [pose.translation.0, pose.translation.1],
             rotation_deg: pose.rotation.to_degrees(),
             scale: pose.scale,
@@ -402,14 +417,15 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
     }
 }
 
-/// Gain, Gaussian read noise plus shot noise (variance σ²·v/255), rounding and clamping to 8 bits.
-fn expose(planes: &[Plane], gain: f64, sigma: f64, seed: u64, frame: usize) -> Image<u8> {
+/// Per-channel gain, Gaussian read noise plus shot noise (variance σ²·v/255), rounding and
+/// clamping to 8 bits.
+fn expose(planes: &[Plane], gain: [f64; 3], sigma: f64, seed: u64, frame: usize) -> Image<u8> {
     let (w, h) = (planes[0].width, planes[0].height);
     let mut rng = Rng::stream(seed, STREAM_NOISE + frame as u64);
     let s2 = sigma * sigma;
     let mut data = Vec::with_capacity(w * h * planes.len());
     for i in 0..w * h {
-        for p in planes {
+        for (p, gain) in planes.iter().zip(gain) {
             let v = p.data[i] as f64 * 255.0 * gain;
             let noisy = if sigma > 0.0 {
                 v + (s2 * (1.0 + v.max(0.0) / 255.0)).sqrt() * rng.normal()

@@ -69,6 +69,71 @@ impl Affine {
     }
 }
 
+/// A smooth displacement added after a global affine, sampled on a regular grid over the
+/// reference frame and interpolated bilinearly: what the affine cannot model (parallax of near
+/// objects, lens distortion that changes with focus) varies slowly across the frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OffsetField {
+    /// Reference pixels between grid nodes; node (i, j) sits at (i·step, j·step).
+    pub step: f64,
+    pub cols: usize,
+    pub rows: usize,
+    /// Row-major `(dx, dy)` per node, in frame pixels.
+    pub offsets: Vec<(f32, f32)>,
+}
+
+impl OffsetField {
+    /// The offset at reference point (x, y), clamped to the grid's edge beyond it.
+    #[inline]
+    pub fn at(&self, x: f64, y: f64) -> (f64, f64) {
+        let gx = (x / self.step).clamp(0.0, (self.cols - 1) as f64);
+        let gy = (y / self.step).clamp(0.0, (self.rows - 1) as f64);
+        let (i, j) = (
+            (gx as usize).min(self.cols.saturating_sub(2)),
+            (gy as usize).min(self.rows.saturating_sub(2)),
+        );
+        let (fx, fy) = (gx - i as f64, gy - j as f64);
+        let node = |i: usize, j: usize| {
+            let (dx, dy) = self.offsets[j.min(self.rows - 1) * self.cols + i.min(self.cols - 1)];
+            (dx as f64, dy as f64)
+        };
+        let lerp =
+            |a: (f64, f64), b: (f64, f64), t: f64| (a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t);
+        let top = lerp(node(i, j), node(i + 1, j), fx);
+        let bottom = lerp(node(i, j + 1), node(i + 1, j + 1), fx);
+        lerp(top, bottom, fy)
+    }
+}
+
+/// Where each reference pixel lies in a frame: the global affine plus, optionally, a smooth
+/// offset field.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Warp {
+    pub affine: Affine,
+    pub field: Option<OffsetField>,
+}
+
+impl Warp {
+    pub fn affine(affine: Affine) -> Warp {
+        Warp {
+            affine,
+            field: None,
+        }
+    }
+
+    #[inline]
+    pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
+        let (u, v) = self.affine.apply(x, y);
+        match &self.field {
+            Some(f) => {
+                let (dx, dy) = f.at(x, y);
+                (u + dx, v + dy)
+            }
+            None => (u, v),
+        }
+    }
+}
+
 /// One frame's entry in the transforms JSON.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FrameTransform {
@@ -117,5 +182,23 @@ mod tests {
             r#"{"reference":1,"size":[4,3],"frames":[{"file":"a.jpg","ref_to_frame":[[1.0,0.0,0.0],[0.0,1.0,0.0]]}]}"#
         );
         assert_eq!(serde_json::from_str::<Transforms>(&s).unwrap(), t);
+    }
+
+    #[test]
+    fn field_interpolates_between_nodes_and_clamps_outside() {
+        let f = OffsetField {
+            step: 10.0,
+            cols: 2,
+            rows: 2,
+            offsets: vec![(0.0, 0.0), (1.0, 0.0), (0.0, 2.0), (1.0, 2.0)],
+        };
+        assert_eq!(f.at(5.0, 5.0), (0.5, 1.0));
+        assert_eq!(f.at(-3.0, 40.0), (0.0, 2.0));
+        let w = Warp {
+            affine: Affine([[1.0, 0.0, 3.0], [0.0, 1.0, 0.0]]),
+            field: Some(f),
+        };
+        assert_eq!(w.apply(10.0, 0.0), (14.0, 0.0));
+        assert_eq!(Warp::affine(Affine::IDENTITY).apply(2.0, 3.0), (2.0, 3.0));
     }
 }
