@@ -9,6 +9,7 @@ pub mod image;
 pub mod maxflow;
 pub mod metrics;
 pub mod pyramid;
+pub mod register;
 pub mod transform;
 pub mod warp;
 
