@@ -1,17 +1,21 @@
-//! Fusion speed on synthetic stacks: graph-cut against the pyramid baseline in the same run.
+//! Fusion speed on synthetic stacks: graph-cut against the pyramid baseline in the same run, and
+//! the whole hand-held pipeline (registration, warping, graph cut) on a hand-held stack.
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use focusd::sim::{render, SimParams};
 use focusd::stack::fuse::{fuse, FuseParams, Method};
+use focusd::stack::image::Image;
 use focusd::stack::NoProgress;
 use std::time::Duration;
 
-fn stack(width: usize, height: usize, planes: usize) -> Vec<focusd::stack::image::Image<u8>> {
+fn stack(width: usize, height: usize, planes: usize, handheld: bool) -> Vec<Image<u8>> {
     render(&SimParams {
         width,
         height,
         planes,
         seed: 7,
+        handheld,
+        gain_jitter: if handheld { 0.05 } else { 0.0 },
         ..SimParams::default()
     })
     .frames
@@ -19,16 +23,29 @@ fn stack(width: usize, height: usize, planes: usize) -> Vec<focusd::stack::image
 
 fn bench_fuse(c: &mut Criterion) {
     for (name, w, h, n) in [("6x1MP", 1152, 864, 6), ("10x3MP", 2048, 1536, 10)] {
-        let frames = stack(w, h, n);
+        let aligned = stack(w, h, n, false);
+        let handheld = stack(w, h, n, true);
         let mut g = c.benchmark_group(format!("fuse_{name}"));
         g.sample_size(10).measurement_time(Duration::from_secs(20));
-        for (label, method) in [("graphcut", Method::GraphCut), ("pyramid", Method::Pyramid)] {
+        let runs = [
+            ("graphcut", Method::GraphCut, false),
+            ("pyramid", Method::Pyramid, false),
+            ("graphcut_handheld", Method::GraphCut, true),
+        ];
+        for (label, method, align) in runs {
             let params = FuseParams {
                 method,
+                align: align.then(Default::default),
+                reference: (n - 1) / 2,
                 ..FuseParams::default()
             };
+            let frames = if align { &handheld } else { &aligned };
             g.bench_function(label, |b| {
-                b.iter(|| fuse(&frames, &params, &NoProgress).unwrap())
+                b.iter_batched(
+                    || frames.clone(),
+                    |f| fuse(f, &params, &NoProgress).unwrap(),
+                    BatchSize::LargeInput,
+                )
             });
         }
         g.finish();

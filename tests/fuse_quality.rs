@@ -71,12 +71,16 @@ fn oracle(s: &Stack) -> Image<u8> {
 
 fn check_stack(name: &str) {
     let s = stack(name);
-    let gc = fuse(&s.frames, &FuseParams::default(), &NoProgress).unwrap();
+    let aligned = FuseParams {
+        align: None,
+        ..FuseParams::default()
+    };
+    let gc = fuse(s.frames.clone(), &aligned, &NoProgress).unwrap();
     let pyr = fuse(
-        &s.frames,
+        s.frames.clone(),
         &FuseParams {
             method: Method::Pyramid,
-            ..FuseParams::default()
+            ..aligned
         },
         &NoProgress,
     )

@@ -2,9 +2,11 @@
 
 use super::io::{self, Decoded};
 use super::progress::Bar;
-use crate::stack::fuse::{fuse, FuseParams, Method};
+use crate::stack::fuse::{fuse, Alignment, FuseError, FuseParams, Method};
 use crate::stack::image::{Image, Sample};
 use crate::stack::metrics::tenengrad;
+use crate::stack::register::{Method as Registered, RegisterError, RegisterParams};
+use crate::stack::transform::{FrameTransform, Transforms};
 use anyhow::{bail, Context, Result};
 use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
 use rayon::prelude::*;
@@ -30,9 +32,16 @@ pub struct FuseArgs {
     /// Frame whose geometry the output takes (0-based; default: the middle frame).
     #[arg(long, value_name = "N")]
     pub reference: Option<usize>,
-    /// Take the frames as already registered.
+    /// Take the frames as already registered (by default each is aligned to the reference).
     #[arg(long)]
     pub no_align: bool,
+    /// Crop the output to the largest rectangle every aligned frame covers (by default the
+    /// output has the reference frame's full size, filled from the frames that cover it).
+    #[arg(long, conflicts_with = "no_align")]
+    pub crop: bool,
+    /// Write each frame's global affine (reference pixels to frame pixels) as JSON.
+    #[arg(long, value_name = "FILE.json", conflicts_with = "no_align")]
+    pub save_transforms: Option<PathBuf>,
     #[arg(long, value_enum, default_value = "graphcut")]
     pub method: MethodArg,
     /// Write the label map: frame index scaled to 0..255 (0 = first frame), 8-bit gray.
@@ -69,8 +78,10 @@ fn check_args(a: &FuseArgs) -> Result<()> {
     if !(0.01..=10.0).contains(&a.lambda) {
         bail!("--lambda {} is out of range 0.01..=10", a.lambda);
     }
-    for out in std::iter::once(&a.output).chain(&a.depthmap) {
-        io::format_for(out)?;
+    for out in std::iter::once(&a.output)
+        .chain(&a.depthmap)
+        .chain(&a.save_transforms)
+    {
         let dir = match out.parent() {
             Some(d) if !d.as_os_str().is_empty() => d,
             _ => Path::new("."),
@@ -83,6 +94,13 @@ fn check_args(a: &FuseArgs) -> Result<()> {
             );
         }
     }
+    io::format_for(&a.output)?;
+    if a.save_transforms
+        .as_ref()
+        .is_some_and(|t| t.extension().is_none_or(|e| e != "json"))
+    {
+        bail!("--save-transforms must be a .json file");
+    }
     if a.depthmap
         .as_ref()
         .is_some_and(|d| io::format_for(d).ok() != Some(image::ImageFormat::Png))
@@ -94,11 +112,6 @@ fn check_args(a: &FuseArgs) -> Result<()> {
 
 pub fn run(a: &FuseArgs) -> Result<()> {
     check_args(a)?;
-    if !a.no_align {
-        eprintln!(
-            "focusd: registration is not implemented yet; frames are taken as aligned (--no-align)"
-        );
-    }
     let t0 = Instant::now();
     let decoded: Vec<Decoded> = a
         .frames
@@ -165,17 +178,26 @@ fn run_typed<T: Sample>(
     let frames = match_channels(frames);
     let n = frames.len();
     let reference = a.reference.unwrap_or((n - 1) / 2);
+    let (w, h) = (frames[0].width, frames[0].height);
     let mut params = FuseParams {
         method: match a.method {
             MethodArg::Graphcut => Method::GraphCut,
             MethodArg::Pyramid => Method::Pyramid,
         },
+        align: (!a.no_align).then(RegisterParams::default),
+        reference,
+        crop: a.crop,
         ..FuseParams::default()
     };
     params.graphcut.lambda = a.lambda;
+    let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
     let bar = Bar::stderr();
-    let fused = fuse(&frames, &params, &bar)?;
+    let fused = fuse(frames, &params, &bar).map_err(|e| name_frame(e, &a.frames));
     bar.finish();
+    let fused = fused?;
+    if let Some(al) = &fused.alignment {
+        report_alignment(al, &a.frames);
+    }
 
     let t = Instant::now();
     let mut bytes = io::encode(&fused.image, io::format_for(&a.output)?, a.quality)?;
@@ -185,8 +207,8 @@ fn run_typed<T: Sample>(
     if let Some(d) = &a.depthmap {
         let scale = 255.0 / (n - 1) as f32;
         let depth = Image::from_vec(
-            frames[0].width,
-            frames[0].height,
+            fused.image.width,
+            fused.image.height,
             1,
             fused
                 .labels
@@ -196,19 +218,38 @@ fn run_typed<T: Sample>(
         );
         io::save(&depth, d, a.quality)?;
     }
+    if let (Some(path), Some(al)) = (&a.save_transforms, &fused.alignment) {
+        let t = Transforms {
+            reference,
+            size: [w, h],
+            frames: a
+                .frames
+                .iter()
+                .zip(&al.registration.ref_to_frame)
+                .map(|(p, &ref_to_frame)| FrameTransform {
+                    file: p.display().to_string(),
+                    ref_to_frame,
+                })
+                .collect(),
+        };
+        let json = serde_json::to_vec_pretty(&t).context("encoding the transforms")?;
+        io::write_atomic(path, &json)?;
+    }
     io::write_atomic(&a.output, &bytes)?;
     let save_time = t.elapsed();
 
-    eprintln!(
-        "focusd: fused {n} frames of {}x{} (reference {reference})",
-        frames[0].width, frames[0].height
-    );
+    eprintln!("focusd: fused {n} frames of {w}x{h} (reference {reference})");
+    if let Some(r) = fused.crop {
+        eprintln!(
+            "  crop  {}x{} at ({}, {}): the area every frame covers",
+            r.width, r.height, r.x, r.y
+        );
+    }
     eprintln!("  time  load {:>8.1} ms", load_time.as_secs_f64() * 1e3);
     for (stage, d) in &fused.timings {
         eprintln!("  time  {stage:<5}{:>8.1} ms", d.as_secs_f64() * 1e3);
     }
     eprintln!("  time  save {:>8.1} ms", save_time.as_secs_f64() * 1e3);
-    let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
     for (i, (s, p)) in sharp.iter().zip(&a.frames).enumerate() {
         eprintln!("  tenengrad  frame {i:>3} {s:>8.3}  {}", p.display());
     }
@@ -218,6 +259,46 @@ fn run_typed<T: Sample>(
         a.output.display()
     );
     Ok(())
+}
+
+/// Names the input file of a frame the registration could not place.
+fn name_frame(e: FuseError, files: &[PathBuf]) -> anyhow::Error {
+    match &e {
+        FuseError::Register(RegisterError::Unmatched { frame, .. }) => {
+            anyhow::anyhow!("{}: {e}", files[*frame].display())
+        }
+        _ => e.into(),
+    }
+}
+
+/// One stderr line per frame: how it was registered and its exposure against the reference.
+fn report_alignment(al: &Alignment, files: &[PathBuf]) {
+    let reg = &al.registration;
+    for (i, file) in files.iter().enumerate() {
+        let how = match reg.how[i] {
+            Registered::Reference => "reference".to_string(),
+            Registered::Direct => format!(
+                "matched  {:>4} inliers, rms {:.2} px, ncc {:.3}",
+                reg.inliers[i], reg.residual_px[i], reg.correlation[i]
+            ),
+            Registered::Chained { via } => format!(
+                "chained via frame {via}: {} inliers, rms {:.2} px, ncc {:.3}",
+                reg.inliers[i], reg.residual_px[i], reg.correlation[i]
+            ),
+            Registered::Inherited { from } => {
+                format!("too little texture to match: takes frame {from}'s pose, left out")
+            }
+        };
+        let gains: Vec<String> = al.exposure[i]
+            .iter()
+            .map(|e| format!("{:.3}", e.gain))
+            .collect();
+        eprintln!(
+            "  align  frame {i:>3} {how}; gain {}  {}",
+            gains.join("/"),
+            file.display()
+        );
+    }
 }
 
 /// Copies the reference frame's EXIF block into an encoded JPEG (a no-op when it has none).

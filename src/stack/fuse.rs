@@ -1,9 +1,15 @@
-//! The fusion entry point: aligned frames in, one all-in-focus image and its label map out.
+//! The fusion entry point: a stack in, one all-in-focus image and its label map out.
 
+use super::align::{estimate_exposure, warp_frame, Coverage, Exposure, Rect};
 use super::compose::{compose, Select};
 use super::graphcut::{label_stack, GraphCutParams};
 use super::image::{Image, Sample};
+use super::register::{
+    register, Method as Registered, RegisterError, RegisterParams, Registration,
+};
+use super::transform::Warp;
 use super::Progress;
+use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -18,6 +24,12 @@ pub enum Method {
 pub struct FuseParams {
     pub method: Method,
     pub graphcut: GraphCutParams,
+    /// Register every frame to the reference first; `None` takes the frames as aligned.
+    pub align: Option<RegisterParams>,
+    /// The frame whose geometry and exposure the output takes.
+    pub reference: usize,
+    /// Crop the output to the largest rectangle every aligned frame covers.
+    pub crop: bool,
 }
 
 impl Default for FuseParams {
@@ -25,12 +37,15 @@ impl Default for FuseParams {
         Self {
             method: Method::GraphCut,
             graphcut: GraphCutParams::default(),
+            align: Some(RegisterParams::default()),
+            reference: 0,
+            crop: false,
         }
     }
 }
 
 /// Why a stack cannot be fused; `frame` indices are 0-based positions in the input.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FuseError {
     #[error("no frames to fuse")]
     NoFrames,
@@ -46,18 +61,37 @@ pub enum FuseError {
     },
     #[error("frames of {0}x{1} are too small to fuse (at least 8x8)")]
     TooSmall(usize, usize),
+    #[error("reference frame {reference} does not exist in a stack of {frames}")]
+    Reference { reference: usize, frames: usize },
+    #[error(transparent)]
+    Register(#[from] RegisterError),
+    #[error("the frames have no area in common to crop to; fuse without cropping")]
+    NothingToCrop,
+}
+
+/// How the frames were brought into the reference's geometry.
+pub struct Alignment {
+    pub registration: Registration,
+    /// Per frame and channel, its exposure against the reference (already undone).
+    pub exposure: Vec<Vec<Exposure>>,
+    /// Per frame, the reference pixels it covers.
+    pub coverage: Vec<Coverage>,
 }
 
 pub struct Fused<T> {
     pub image: Image<T>,
     /// Per pixel, the frame the output was taken from.
     pub labels: Vec<u8>,
+    /// `None` when the frames were taken as aligned.
+    pub alignment: Option<Alignment>,
+    /// The rectangle of the reference frame the output shows, when cropped.
+    pub crop: Option<Rect>,
     /// Wall time of each stage, in order.
     pub timings: Vec<(&'static str, Duration)>,
 }
 
 /// Checks that a stack can be fused at all.
-pub fn validate<T>(frames: &[Image<T>]) -> Result<(), FuseError> {
+pub fn validate<T>(frames: &[Image<T>], reference: usize) -> Result<(), FuseError> {
     match frames.len() {
         0 => return Err(FuseError::NoFrames),
         1 => return Err(FuseError::OneFrame),
@@ -76,28 +110,64 @@ pub fn validate<T>(frames: &[Image<T>]) -> Result<(), FuseError> {
     if expected.0 < 8 || expected.1 < 8 {
         return Err(FuseError::TooSmall(expected.0, expected.1));
     }
+    if reference >= frames.len() {
+        return Err(FuseError::Reference {
+            reference,
+            frames: frames.len(),
+        });
+    }
     Ok(())
 }
 
-/// Fuses an aligned stack.
+/// Fuses a stack: registers and warps it onto the reference (unless `params.align` is
+/// `None`), labels and composes. Takes the frames by value to warp them in place.
 pub fn fuse<T: Sample>(
-    frames: &[Image<T>],
+    mut frames: Vec<Image<T>>,
     params: &FuseParams,
     progress: &dyn Progress,
 ) -> Result<Fused<T>, FuseError> {
-    validate(frames)?;
+    validate(&frames, params.reference)?;
     let mut timings = Vec::new();
     let mut t = Instant::now();
     let mut lap = |name: &'static str, timings: &mut Vec<(&'static str, Duration)>| {
         timings.push((name, t.elapsed()));
         t = Instant::now();
     };
-    let (image, labels) = match params.method {
+    let reference = params.reference;
+    let alignment = match &params.align {
+        Some(p) => {
+            progress.stage("register", 1);
+            let lumas: Vec<_> = frames.par_iter().map(|f| f.luma()).collect();
+            let registration = register(&lumas, reference, p)?;
+            drop(lumas);
+            progress.advance(1);
+            lap("register", &mut timings);
+            let a = align(&mut frames, registration, reference, progress);
+            lap("warp", &mut timings);
+            Some(a)
+        }
+        None => None,
+    };
+    let full: Vec<Coverage>;
+    let coverage = match &alignment {
+        Some(a) => &a.coverage,
+        None => {
+            full = vec![Coverage::full(frames[0].width, frames[0].height); frames.len()];
+            &full
+        }
+    };
+    let (mut image, mut labels) = match params.method {
         Method::GraphCut => {
-            let labels = label_stack(frames, &params.graphcut, progress);
+            let labels = label_stack(
+                &frames,
+                coverage,
+                reference as u8,
+                &params.graphcut,
+                progress,
+            );
             lap("labels", &mut timings);
             let (image, _) = compose(
-                frames,
+                &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),
                 progress,
             );
@@ -105,16 +175,92 @@ pub fn fuse<T: Sample>(
             (image, labels)
         }
         Method::Pyramid => {
-            let r = compose(frames, Select::MaxContrast, progress);
+            let r = compose(&frames, Select::MaxContrast, progress);
             lap("pyramid", &mut timings);
             r
         }
     };
+    let crop = match (&alignment, params.crop) {
+        (Some(a), true) => {
+            let rect = Coverage::intersection(&a.coverage)
+                .largest_rect()
+                .ok_or(FuseError::NothingToCrop)?;
+            (image, labels) = crop_to(&image, &labels, rect);
+            Some(rect)
+        }
+        _ => None,
+    };
     Ok(Fused {
         image,
         labels,
+        alignment,
+        crop,
         timings,
     })
+}
+
+/// Estimates every frame's exposure and warps it onto the reference, in place. A frame
+/// registered by inheriting a neighbour's pose is left out.
+fn align<T: Sample>(
+    frames: &mut [Image<T>],
+    registration: Registration,
+    reference: usize,
+    progress: &dyn Progress,
+) -> Alignment {
+    let n = frames.len();
+    progress.stage("warp", n - 1);
+    let (w, h) = (frames[0].width, frames[0].height);
+    let mut exposure = vec![vec![Exposure::SAME; frames[0].channels]; n];
+    let mut coverage = vec![Coverage::full(w, h); n];
+    let (before, rest) = frames.split_at_mut(reference);
+    let (r, after) = rest
+        .split_first_mut()
+        .expect("reference checked by validate");
+    for (i, f) in before.iter_mut().enumerate().chain(
+        after
+            .iter_mut()
+            .enumerate()
+            .map(|(k, f)| (reference + 1 + k, f)),
+    ) {
+        if let Registered::Inherited { .. } = registration.how[i] {
+            // Too little texture to match means too little to contribute, and its pose is only
+            // a guess: it stands in as the reference and covers nothing.
+            f.clone_from(r);
+            coverage[i].spans.fill((0, 0));
+            progress.advance(1);
+            continue;
+        }
+        let warp = Warp {
+            affine: registration.ref_to_frame[i],
+            field: None,
+        };
+        exposure[i] = estimate_exposure(f, r, &warp);
+        let (warped, cov) = warp_frame(f, r, &warp, &exposure[i]);
+        *f = warped;
+        coverage[i] = cov;
+        progress.advance(1);
+    }
+    Alignment {
+        registration,
+        exposure,
+        coverage,
+    }
+}
+
+/// The `rect` of an image and of its label map.
+fn crop_to<T: Sample>(image: &Image<T>, labels: &[u8], rect: Rect) -> (Image<T>, Vec<u8>) {
+    let (w, ch) = (image.width, image.channels);
+    let rows = rect.y..rect.y + rect.height;
+    let data = rows
+        .clone()
+        .flat_map(|y| &image.data[(y * w + rect.x) * ch..][..rect.width * ch])
+        .copied()
+        .collect();
+    let labels = rows
+        .flat_map(|y| &labels[y * w + rect.x..][..rect.width])
+        .copied()
+        .collect();
+    (Image::from_vec(rect.width, rect.height, ch, data), labels)
 }
 
 #[cfg(test)]
@@ -125,7 +271,8 @@ mod tests {
     #[test]
     fn bad_stacks_are_refused_with_the_reason() {
         let f = |w, h, c| Image::<u8>::new(w, h, c);
-        let fuse = |frames: &[Image<u8>]| fuse(frames, &FuseParams::default(), &NoProgress).err();
+        let fuse =
+            |frames: &[Image<u8>]| fuse(frames.to_vec(), &FuseParams::default(), &NoProgress).err();
         assert_eq!(fuse(&[]), Some(FuseError::NoFrames));
         assert_eq!(fuse(&[f(16, 16, 3)]), Some(FuseError::OneFrame));
         assert_eq!(

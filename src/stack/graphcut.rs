@@ -5,6 +5,7 @@
 //! label change. Solved by α-expansion on a coarse level, then re-solved at full resolution only
 //! in a band around the coarse label boundaries and where the coarse label misses fine detail.
 
+use super::align::Coverage;
 use super::blur::downsample_area;
 use super::expansion::{expand, Costs, Grid};
 use super::focus::{downsample_amplitude, focus_amplitude, max_amplitude, FocusParams, AMP_SCALE};
@@ -189,9 +190,12 @@ fn downsample_image<T: Sample>(img: &Image<T>, f: usize) -> Image<T> {
     Image::from_planes(&planes)
 }
 
-/// Labels each pixel of an aligned stack with the index of the frame to copy it from.
+/// Labels each pixel of an aligned stack with the index of the frame to copy it from. A frame is
+/// never chosen where its `coverage` misses; `fallback` must cover every pixel (the reference).
 pub fn label_stack<T: Sample>(
     frames: &[Image<T>],
+    coverage: &[Coverage],
+    fallback: u8,
     p: &GraphCutParams,
     progress: &dyn Progress,
 ) -> Vec<u8> {
@@ -199,8 +203,17 @@ pub fn label_stack<T: Sample>(
     progress.stage("focus", frames.len());
     let amps: Vec<Vec<u16>> = frames
         .iter()
-        .map(|f| {
-            let a = focus_amplitude(&f.luma(), &p.focus);
+        .zip(coverage)
+        .map(|(f, cov)| {
+            let mut a = focus_amplitude(&f.luma(), &p.focus);
+            // No focus where the frame has no content of its own: the graph cut steers away,
+            // and `keep_covered` settles the flat areas where every frame scores zero.
+            a.par_chunks_mut(w)
+                .zip(&cov.spans)
+                .for_each(|(row, &(lo, hi))| {
+                    row[..lo as usize].fill(0);
+                    row[(hi as usize).max(lo as usize)..].fill(0);
+                });
             progress.advance(1);
             a
         })
@@ -221,6 +234,7 @@ pub fn label_stack<T: Sample>(
             p.max_cycles,
             progress,
         );
+        keep_covered(&mut labels, w, coverage, fallback);
         return labels;
     }
 
@@ -277,7 +291,19 @@ pub fn label_stack<T: Sample>(
         p.max_cycles,
         progress,
     );
+    keep_covered(&mut labels, w, coverage, fallback);
     labels
+}
+
+/// Relabels with `fallback` every pixel whose label's frame does not cover it.
+fn keep_covered(labels: &mut [u8], w: usize, coverage: &[Coverage], fallback: u8) {
+    labels.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, l) in row.iter_mut().enumerate() {
+            if !coverage[*l as usize].covers(x, y) {
+                *l = fallback;
+            }
+        }
+    });
 }
 
 /// Coarse pixels with an 8-neighbour of another label.

@@ -17,7 +17,9 @@ impl Sample for u8 {
     }
     #[inline]
     fn from_f32(v: f32) -> Self {
-        v.round().clamp(0.0, 255.0) as u8
+        // Truncating v + ½ rounds half away from zero like `round` on the clamped range, without
+        // `round`'s libm call (baseline x86-64 has no rounding instruction).
+        (v.clamp(0.0, 255.0) + 0.5) as u8
     }
 }
 
@@ -29,7 +31,7 @@ impl Sample for u16 {
     }
     #[inline]
     fn from_f32(v: f32) -> Self {
-        v.round().clamp(0.0, 65535.0) as u16
+        (v.clamp(0.0, 65535.0) + 0.5) as u16
     }
 }
 

@@ -1,4 +1,5 @@
 //! The stack engine: pure pixel work on in-memory frames, no I/O.
+pub mod align;
 pub mod blur;
 pub mod compose;
 pub mod expansion;
