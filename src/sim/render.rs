@@ -12,7 +12,7 @@
 //! are exact crops of the canvas.
 
 use super::optics::Optics;
-use super::pose::draw_poses;
+use super::pose::{draw_poses, Pose};
 use super::rng::Rng;
 use super::scene::{Depth, Layer, Scene};
 use super::{FrameInfo, SimParams, SimStack};
@@ -343,20 +343,11 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
         })
         .collect();
 
-    let tmax = p.max_shift * w as f64;
     let mut frames = Vec::with_capacity(n);
     let mut info = Vec::with_capacity(n);
     for i in 0..n {
         let pose = poses[i];
-        let parallax = if p.handheld && tmax > 0.0 {
-            let k = p.parallax_px / tmax;
-            Parallax {
-                v: (pose.translation.0 * k, pose.translation.1 * k),
-                q_far,
-            }
-        } else {
-            Parallax::NONE
-        };
+        let parallax = frame_parallax(p, &pose);
         let mut canvas: [Plane; 3] = std::array::from_fn(|_| Plane::new(cv.width, cv.height, 1));
         for (li, layer) in scene.layers.iter().enumerate() {
             let moved;
@@ -415,6 +406,45 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
         owner,
         canvas: cv,
     }
+}
+
+/// The parallax of a frame in pose `pose`: proportional to its translation, `parallax_px` at
+/// full `max_shift`.
+fn frame_parallax(p: &SimParams, pose: &Pose) -> Parallax {
+    let tmax = p.max_shift * p.width as f64;
+    if p.handheld && tmax > 0.0 {
+        let k = p.parallax_px / tmax;
+        Parallax {
+            v: (pose.translation.0 * k, pose.translation.1 * k),
+            q_far: (p.planes - 1) as f64,
+        }
+    } else {
+        Parallax::NONE
+    }
+}
+
+/// Ground truth for registration: where frame `i` shows the scene point that reference pixel
+/// (x, y) shows (row-major, frame pixel coordinates). That is the frame's affine after the
+/// parallax shift of the layer visible there (`r.owner`), so it departs from
+/// `stack.ref_to_frame[i]` on near layers; it is ambiguous only within a pixel or two of an
+/// occlusion edge, where parallax uncovers or hides background.
+pub fn true_positions(p: &SimParams, scene: &Scene, r: &Rendered, i: usize) -> Vec<(f64, f64)> {
+    let poses = draw_poses(p, STREAM_POSES);
+    let parallax = frame_parallax(p, &poses[i]);
+    let a = r.stack.ref_to_frame[i];
+    let w = p.width;
+    (0..w * p.height)
+        .map(|k| {
+            let (x, y) = ((k % w) as f64, (k / w) as f64);
+            let layer = &scene.layers[r.owner[k]];
+            let (dx, dy) = if parallax.moves(layer) {
+                parallax.shift(layer.depth.at(x, y))
+            } else {
+                (0.0, 0.0)
+            };
+            a.apply(x + dx, y + dy)
+        })
+        .collect()
 }
 
 /// Per-channel gain, Gaussian read noise plus shot noise (variance σ²·v/255), rounding and
@@ -709,6 +739,46 @@ mod tests {
         assert_eq!(a.frames[a.reference], b.frames[b.reference]);
         let moved = (0..6).filter(|&i| a.frames[i] != b.frames[i]).count();
         assert_eq!(moved, 5);
+    }
+
+    #[test]
+    fn true_positions_follow_the_affine_plus_near_layer_parallax() {
+        let p = SimParams {
+            parallax_px: 2.0,
+            ..quiet(small(11, true))
+        };
+        let scene = Scene::generate(&p);
+        let r = render_scene(&p, &scene);
+        let i = (r.stack.reference + 1) % p.planes;
+        let a = r.stack.ref_to_frame[i];
+        let pos = true_positions(&p, &scene, &r, i);
+        let (mut moved, mut still) = (0, 0);
+        for (k, &(u, v)) in pos.iter().enumerate() {
+            let (x, y) = ((k % 160) as f64, (k / 160) as f64);
+            let (au, av) = a.apply(x, y);
+            let d = (u - au).hypot(v - av);
+            // Never more than the parallax; the far background exactly on the affine.
+            assert!(d <= 2.0 + 1e-9, "{d}");
+            if r.owner[k] == 0 && matches!(scene.layers[0].depth, Depth::Plane(_)) {
+                assert!(d < 1e-9);
+            }
+            if d > 0.1 {
+                moved += 1;
+            } else {
+                still += 1;
+            }
+        }
+        assert!(moved > 100 && still > 100, "{moved} moved, {still} still");
+        let flat = SimParams {
+            parallax_px: 0.0,
+            ..p
+        };
+        let r0 = render_scene(&flat, &scene);
+        let pos0 = true_positions(&flat, &scene, &r0, i);
+        assert!(pos0
+            .iter()
+            .enumerate()
+            .all(|(k, &q)| q == a.apply((k % 160) as f64, (k / 160) as f64)));
     }
 
     #[test]

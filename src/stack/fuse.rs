@@ -232,7 +232,7 @@ fn align<T: Sample>(
         }
         let warp = Warp {
             affine: registration.ref_to_frame[i],
-            field: None,
+            field: registration.field[i].clone(),
         };
         exposure[i] = estimate_exposure(f, r, &warp);
         let (warped, cov) = warp_frame(f, r, &warp, &exposure[i]);

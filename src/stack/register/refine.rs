@@ -21,12 +21,12 @@ const HUBER: f32 = 1.5;
 const EQUALISE_ROUNDS: usize = 2;
 
 /// A template image with its gradients (central differences, zero on the border).
-struct View {
-    width: usize,
-    height: usize,
-    t: Vec<f32>,
-    gx: Vec<f32>,
-    gy: Vec<f32>,
+pub(super) struct View {
+    pub width: usize,
+    pub height: usize,
+    pub t: Vec<f32>,
+    pub gx: Vec<f32>,
+    pub gy: Vec<f32>,
 }
 
 impl View {
@@ -51,7 +51,7 @@ impl View {
     }
 
     /// Per pixel, the value and gradients of the view `pick` selects.
-    fn select(views: &[View], pick: &[(u8, u8)]) -> View {
+    pub fn select(views: &[View], pick: &[(u8, u8)]) -> View {
         let at = |i: usize| &views[pick[i].0 as usize];
         let n = pick.len();
         View {
@@ -68,10 +68,10 @@ impl View {
 /// of the equalisation sigmas.
 pub struct Template {
     /// Levels from the finest (`first`) up.
-    levels: Vec<View>,
-    first: usize,
-    stack: Stack,
-    stack_views: Vec<View>,
+    pub(super) levels: Vec<View>,
+    pub(super) first: usize,
+    pub(super) stack: Stack,
+    pub(super) stack_views: Vec<View>,
 }
 
 impl Template {
@@ -96,6 +96,9 @@ pub struct Refined {
     pub affine: Affine,
     /// Normalised cross-correlation of the aligned frame with the reference on the finest level.
     pub correlation: f64,
+    /// Photometric fit on the finest level: frame ≈ gain · reference + offset.
+    pub gain: f32,
+    pub offset: f32,
 }
 
 /// The state of the fit on one level: the warp in level pixels and the photometric correction
@@ -124,7 +127,8 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
         if i == 0 {
             let stack = Stack::new(frame.get(k));
             for _ in 0..EQUALISE_ROUNDS {
-                let warped = warp_stack(&stack, &fit, view.width, view.height);
+                let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0]);
+                let warped = warp_stack(&stack, &cs, fit.gain, fit.offset);
                 let pick = equalise::choose(&tpl.stack, &warped);
                 let eq = View::select(&tpl.stack_views, &pick);
                 let frame_layer: Vec<u8> = pick.iter().map(|p| p.1).collect();
@@ -136,6 +140,8 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
     Refined {
         affine: fit.w,
         correlation: fit.correlation,
+        gain: fit.gain,
+        offset: fit.offset,
     }
 }
 
@@ -158,19 +164,31 @@ fn iterate(view: &View, frame: &[Plane], layer: Option<&[u8]>, fit: &mut Fit, it
 
 /// Where each template pixel lands in a frame: the top-left source pixel and the bilinear
 /// weights, computed once per warp and shared by every layer sampled through it.
-struct Coords {
+pub(super) struct Coords {
     /// `u32::MAX` where the pixel falls outside the frame (or on the template's border).
     idx: Vec<u32>,
     fx: Vec<f32>,
     fy: Vec<f32>,
     /// Frame row length.
     stride: usize,
+    /// Template size.
+    width: usize,
+    height: usize,
 }
 
 impl Coords {
     fn new(w: &Affine, tw: usize, th: usize, frame: &Plane) -> Coords {
+        Coords::mapped(tw, th, frame, |x, y| w.apply(x, y))
+    }
+
+    /// Where `map` sends each template pixel (x, y) in the frame.
+    pub fn mapped(
+        tw: usize,
+        th: usize,
+        frame: &Plane,
+        map: impl Fn(f64, f64) -> (f64, f64) + Sync,
+    ) -> Coords {
         let (iw, ih) = (frame.width as f32 - 1.0, frame.height as f32 - 1.0);
-        let [[a, b, c], [d, e, f]] = w.0;
         let rows: Vec<(Vec<u32>, Vec<f32>, Vec<f32>)> = (0..th)
             .into_par_iter()
             .map(|y| {
@@ -180,8 +198,8 @@ impl Coords {
                     return (idx, fx, fy);
                 }
                 for x in 1..tw - 1 {
-                    let u = (a * x as f64 + b * y as f64 + c) as f32;
-                    let v = (d * x as f64 + e * y as f64 + f) as f32;
+                    let (u, v) = map(x as f64, y as f64);
+                    let (u, v) = (u as f32, v as f32);
                     if u >= 0.0 && v >= 0.0 && u < iw && v < ih {
                         let (x0, y0) = (u.floor(), v.floor());
                         idx[x] = (y0 as usize * frame.width + x0 as usize) as u32;
@@ -197,6 +215,8 @@ impl Coords {
             fx: Vec::with_capacity(tw * th),
             fy: Vec::with_capacity(tw * th),
             stride: frame.width,
+            width: tw,
+            height: th,
         };
         for (i, x, y) in rows {
             cs.idx.extend(i);
@@ -208,7 +228,7 @@ impl Coords {
 
     /// Bilinear sample of `p` for template pixel `i`, None outside.
     #[inline]
-    fn sample(&self, p: &Plane, i: usize) -> Option<f32> {
+    pub fn sample(&self, p: &Plane, i: usize) -> Option<f32> {
         let k = self.idx[i];
         if k == u32::MAX {
             return None;
@@ -221,19 +241,16 @@ impl Coords {
     }
 }
 
-/// Each layer of the frame's stack resampled onto the template through the current fit and
-/// corrected for gain and offset; NaN outside the frame.
-fn warp_stack(stack: &Stack, fit: &Fit, w: usize, h: usize) -> Vec<Plane> {
-    let cs = Coords::new(&fit.w, w, h, &stack.layers[0]);
+/// Each layer of the frame's stack resampled onto the template through `cs` and corrected for
+/// gain and offset; NaN outside the frame.
+pub(super) fn warp_stack(stack: &Stack, cs: &Coords, gain: f32, offset: f32) -> Vec<Plane> {
+    let (w, h) = (cs.width, cs.height);
     stack
         .layers
         .par_iter()
         .map(|l| {
             let data = (0..w * h)
-                .map(|i| {
-                    cs.sample(l, i)
-                        .map_or(f32::NAN, |v| (v - fit.offset) / fit.gain)
-                })
+                .map(|i| cs.sample(l, i).map_or(f32::NAN, |v| (v - offset) / gain))
                 .collect();
             Plane::from_vec(w, h, 1, data)
         })
@@ -350,7 +367,7 @@ fn ncc(c: &[f64; 6]) -> f64 {
 }
 
 /// Cholesky solve of the normal equations, upper triangle given; None if not positive definite.
-fn solve(h: [[f64; N]; N], b: [f64; N]) -> Option<[f64; N]> {
+pub(super) fn solve<const N: usize>(h: [[f64; N]; N], b: [f64; N]) -> Option<[f64; N]> {
     let mut l = [[0.0f64; N]; N];
     for i in 0..N {
         for j in 0..=i {
