@@ -206,7 +206,6 @@ fn fit_exposure(points: &[(f64, f64, f64)]) -> Option<Exposure> {
 /// Keys' cubic convolution weights (a = −½) of the four taps around a point `t` past the second.
 /// Bilinear resampling would soften every frame once more (measured: the oracle stack of
 /// sim-data/handheld loses 0.7 dB with it).
-#[inline]
 fn keys(t: f32) -> [f32; 4] {
     let (t2, t3) = (t * t, t * t * t);
     [
@@ -217,6 +216,16 @@ fn keys(t: f32) -> [f32; 4] {
     ]
 }
 
+/// Sub-pixel positions [`keys`] is tabulated at: 1/256 px is far below registration error, and
+/// the table lookup costs a fifth of computing the weights per pixel.
+const PHASES: usize = 256;
+
+fn keys_table() -> Vec<[f32; 4]> {
+    (0..=PHASES)
+        .map(|i| keys(i as f32 / PHASES as f32))
+        .collect()
+}
+
 /// Resamples `frame` onto the reference's grid through `warp` (bicubic), undoing `exposure`;
 /// pixels the frame does not cover take `reference`'s values.
 pub fn warp_frame<T: Sample>(
@@ -225,26 +234,60 @@ pub fn warp_frame<T: Sample>(
     warp: &Warp,
     exposure: &[Exposure],
 ) -> (Image<T>, Coverage) {
+    let mut out = reference.clone();
+    let cov = warp_frame_into(frame, reference, warp, exposure, &mut out, &mut Vec::new());
+    (out, cov)
+}
+
+/// [`warp_frame`] into `out` (the reference's geometry), with `scratch` for the frame's samples
+/// as floats: a stack is warped through the same two buffers, not two fresh ones per frame.
+pub fn warp_frame_into<T: Sample>(
+    frame: &Image<T>,
+    reference: &Image<T>,
+    warp: &Warp,
+    exposure: &[Exposure],
+    out: &mut Image<T>,
+    scratch: &mut Vec<f32>,
+) -> Coverage {
+    assert!(
+        out.same_geometry(reference),
+        "output is not the reference's geometry"
+    );
     match reference.channels {
-        1 => warp_channels::<T, 1>(frame, reference, warp, exposure),
-        3 => warp_channels::<T, 3>(frame, reference, warp, exposure),
+        1 => warp_channels::<T, 1>(frame, reference, warp, exposure, &mut out.data, scratch),
+        3 => warp_channels::<T, 3>(frame, reference, warp, exposure, &mut out.data, scratch),
         n => panic!("frames have 1 or 3 channels, not {n}"),
     }
 }
 
-/// `warp_frame` for `C` channels, so the tap loops unroll.
+/// `warp_frame_into` for `C` channels, so the tap loops unroll.
 fn warp_channels<T: Sample, const C: usize>(
     frame: &Image<T>,
     reference: &Image<T>,
     warp: &Warp,
     exposure: &[Exposure],
-) -> (Image<T>, Coverage) {
-    let (w, h) = (reference.width, reference.height);
+    data: &mut [T],
+    src: &mut Vec<f32>,
+) -> Coverage {
+    let w = reference.width;
     let (fw, fh) = (frame.width, frame.height);
     let (umax, vmax) = (fw as f64 - 1.0, fh as f64 - 1.0);
     let scale = T::MAX;
-    let exposure: [Exposure; C] = std::array::from_fn(|c| exposure[c]);
-    let mut data = vec![T::default(); w * h * C];
+    // v' = (v − offset·MAX) / gain as one multiply-add.
+    let correct: [(f32, f32); C] = std::array::from_fn(|c| {
+        let e = exposure[c];
+        (1.0 / e.gain, -e.offset * scale / e.gain)
+    });
+    // Converted once: a scalar integer-to-float conversion per tap would cost more than the
+    // interpolation (16 taps per pixel and channel).
+    // Sized up front, in one allocation: a parallel collect would build it from pieces allocated
+    // in the worker threads' malloc arenas, which keep the memory after it is freed.
+    src.resize(frame.data.len(), 0.0);
+    src.par_chunks_mut(1 << 16)
+        .zip(frame.data.par_chunks(1 << 16))
+        .for_each(|(d, s)| d.iter_mut().zip(s).for_each(|(d, s)| *d = s.to_f32()));
+    let table = keys_table();
+    let phase = |f: f64| table[(f * PHASES as f64 + 0.5) as usize];
     let spans: Vec<(u32, u32)> = data
         .par_chunks_mut(w * C)
         .enumerate()
@@ -259,17 +302,17 @@ fn warp_channels<T: Sample, const C: usize>(
                 (lo, hi) = (lo.min(x), x + 1);
                 // u, v ≥ 0 here, so truncation is `floor` without its libm call.
                 let (x0, y0) = (u as usize, v as usize);
-                let (kx, ky) = (keys((u - x0 as f64) as f32), keys((v - y0 as f64) as f32));
+                let (kx, ky) = (phase(u - x0 as f64), phase(v - y0 as f64));
                 let mut acc = [0.0f32; C];
                 if x0 >= 1 && y0 >= 1 && x0 + 2 < fw && y0 + 2 < fh {
                     // Inside: the 4×4 taps are contiguous runs of rows.
                     let base = ((y0 - 1) * fw + x0 - 1) * C;
                     for (r, &wy) in ky.iter().enumerate() {
-                        let taps = &frame.data[base + r * fw * C..][..4 * C];
+                        let taps = &src[base + r * fw * C..][..4 * C];
                         for (px, &wx) in taps.chunks_exact(C).zip(&kx) {
                             let k = wx * wy;
                             for (a, s) in acc.iter_mut().zip(px) {
-                                *a += k * s.to_f32();
+                                *a += k * s;
                             }
                         }
                     }
@@ -278,15 +321,15 @@ fn warp_channels<T: Sample, const C: usize>(
                     for (r, &wy) in ky.iter().enumerate() {
                         let yy = tap(y0, r, fh);
                         for (k, &wx) in kx.iter().enumerate() {
-                            let px = &frame.data[(yy * fw + tap(x0, k, fw)) * C..][..C];
+                            let px = &src[(yy * fw + tap(x0, k, fw)) * C..][..C];
                             for (a, s) in acc.iter_mut().zip(px) {
-                                *a += wx * wy * s.to_f32();
+                                *a += wx * wy * s;
                             }
                         }
                     }
                 }
-                for ((o, e), s) in out.iter_mut().zip(&exposure).zip(acc) {
-                    *o = T::from_f32((s - e.offset * scale) / e.gain);
+                for ((o, &(m, b)), s) in out.iter_mut().zip(&correct).zip(acc) {
+                    *o = T::from_f32(s * m + b);
                 }
             }
             if hi <= lo {
@@ -296,7 +339,7 @@ fn warp_channels<T: Sample, const C: usize>(
             }
         })
         .collect();
-    (Image::from_vec(w, h, C, data), Coverage { width: w, spans })
+    Coverage { width: w, spans }
 }
 
 #[cfg(test)]

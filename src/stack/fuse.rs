@@ -1,15 +1,15 @@
 //! The fusion entry point: a stack in, one all-in-focus image and its label map out.
 
-use super::align::{estimate_exposure, warp_frame, Coverage, Exposure, Rect};
+use super::align::{estimate_exposure, warp_frame_into, Coverage, Exposure, Rect};
 use super::compose::{compose, Select};
 use super::graphcut::{label_stack, GraphCutParams};
 use super::image::{Image, Sample};
 use super::register::{
-    register, Method as Registered, RegisterError, RegisterParams, Registration,
+    register_with, Method as Registered, RegisterError, RegisterParams, Registration,
 };
 use super::transform::Warp;
 use super::Progress;
-use rayon::prelude::*;
+use std::borrow::Cow;
 use std::time::{Duration, Instant};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -137,9 +137,9 @@ pub fn fuse<T: Sample>(
     let alignment = match &params.align {
         Some(p) => {
             progress.stage("register", 1);
-            let lumas: Vec<_> = frames.par_iter().map(|f| f.luma()).collect();
-            let registration = register(&lumas, reference, p)?;
-            drop(lumas);
+            let size = (frames[0].width, frames[0].height);
+            let luma = |i: usize| Cow::Owned(frames[i].luma());
+            let registration = register_with(frames.len(), size, luma, reference, p)?;
             progress.advance(1);
             lap("register", &mut timings);
             let a = align(&mut frames, registration, reference, progress);
@@ -216,6 +216,7 @@ fn align<T: Sample>(
     let (r, after) = rest
         .split_first_mut()
         .expect("reference checked by validate");
+    let (mut spare, mut scratch) = (r.clone(), Vec::new());
     for (i, f) in before.iter_mut().enumerate().chain(
         after
             .iter_mut()
@@ -235,9 +236,8 @@ fn align<T: Sample>(
             field: registration.field[i].clone(),
         };
         exposure[i] = estimate_exposure(f, r, &warp);
-        let (warped, cov) = warp_frame(f, r, &warp, &exposure[i]);
-        *f = warped;
-        coverage[i] = cov;
+        coverage[i] = warp_frame_into(f, r, &warp, &exposure[i], &mut spare, &mut scratch);
+        std::mem::swap(f, &mut spare);
         progress.advance(1);
     }
     Alignment {

@@ -121,7 +121,7 @@ impl Warp {
         }
     }
 
-    #[inline]
+    #[inline(always)]
     pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
         let (u, v) = self.affine.apply(x, y);
         match &self.field {
