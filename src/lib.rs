@@ -1,4 +1,6 @@
 //! focusd: hand-held focus stacking.
+pub mod backend;
+pub mod capture;
 pub mod cli;
 pub mod sim;
 pub mod stack;

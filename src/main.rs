@@ -12,6 +12,8 @@ struct Args {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Sweep the focus (or replay a recorded sweep), reshoot shaken frames, register and fuse.
+    Capture(cli::capture::CaptureArgs),
     /// Fuse a focus stack into one all-in-focus image.
     Fuse(cli::fuse::FuseArgs),
     /// Render a synthetic focus stack with ground truth (frames, truth, depth, transforms).
@@ -21,6 +23,7 @@ enum Command {
 fn main() -> ExitCode {
     let args = Args::parse();
     let result = match &args.command {
+        Command::Capture(a) => cli::capture::run(a),
         Command::Fuse(a) => cli::fuse::run(a),
         Command::Simulate(a) => cli::simulate::run(a),
     };

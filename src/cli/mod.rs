@@ -1,4 +1,5 @@
 //! Command-line front ends over the library.
+pub mod capture;
 pub mod fuse;
 pub mod io;
 pub mod progress;

@@ -5,7 +5,9 @@
 //! round(i·255/(planes−1)), as `focusd fuse --depthmap` writes it), `transforms.json` (true
 //! reference→frame affines) and `stack.json` (parameters and per-frame focus, gain and pose).
 
-use crate::cli::io::{save, write_atomic};
+use crate::backend::replay::BundleWriter;
+use crate::cli::io::{encode, save, write_atomic};
+use crate::sim::bundle::{self, Shake};
 use crate::sim::{self, FrameInfo, SimParams};
 use crate::stack::image::Image;
 use crate::stack::transform::{FrameTransform, Transforms};
@@ -68,6 +70,14 @@ pub struct SimulateArgs {
     /// Focus distance of the farthest plane, diopters (0..near).
     #[arg(long, default_value_t = 5.0)]
     pub far_diopters: f64,
+    /// Also write a replay bundle (bundle.toml, imu.csv): the frames as the takes of a focus
+    /// sweep, with an IMU trace of hand tremor (see sim-data/README.md).
+    #[arg(long)]
+    pub bundle: bool,
+    /// With --bundle: shake plane P's first N takes, then take it once more steadily;
+    /// `P:N:stuck` leaves out the steady take, so the reshoots run out. Repeatable.
+    #[arg(long, value_name = "P:N[:stuck]", requires = "bundle")]
+    pub shake: Vec<String>,
     /// JPEG quality of the frames (1..=100).
     #[arg(long, default_value_t = 92)]
     pub quality: u32,
@@ -93,6 +103,35 @@ impl SimulateArgs {
             near_diopters: self.near_diopters,
             far_diopters: self.far_diopters,
         }
+    }
+
+    /// The `--shake` plan, checked against the plane count.
+    pub fn shakes(&self) -> Result<Vec<Shake>> {
+        self.shake
+            .iter()
+            .map(|s| {
+                let bad = || anyhow::anyhow!("--shake {s:?}: expected P:N or P:N:stuck, e.g. 2:2");
+                let f: Vec<&str> = s.split(':').collect();
+                let (plane, takes) = match f[..] {
+                    [p, n] | [p, n, "stuck"] => (
+                        p.parse::<usize>().map_err(|_| bad())?,
+                        n.parse::<usize>().map_err(|_| bad())?,
+                    ),
+                    _ => return Err(bad()),
+                };
+                if plane >= self.planes || !(1..=20).contains(&takes) {
+                    bail!(
+                        "--shake {s:?}: plane must be below --planes {} and takes in 1..=20",
+                        self.planes
+                    );
+                }
+                Ok(Shake {
+                    plane,
+                    takes,
+                    recovers: f.len() == 2,
+                })
+            })
+            .collect()
     }
 
     /// Checks every argument; errors are one line naming the value and the allowed range.
@@ -182,6 +221,7 @@ pub fn frame_name(i: usize) -> String {
 
 pub fn run(args: &SimulateArgs) -> Result<()> {
     let p = args.validate()?;
+    let shakes = args.shakes()?;
     let dir = &args.output;
     fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create directory", dir.display()))?;
@@ -225,7 +265,13 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
 
     let meta = StackJson {
         generator: format!("focusd simulate {}", env!("CARGO_PKG_VERSION")),
-        command: command_line(&p, args.quality, dir),
+        command: command_line(&p, args.quality, dir)
+            + if args.bundle { " --bundle" } else { "" }
+            + &args
+                .shake
+                .iter()
+                .map(|s| format!(" --shake {s}"))
+                .collect::<String>(),
         seed: p.seed,
         params: &p,
         jpeg_quality: args.quality,
@@ -250,6 +296,10 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let mut json = serde_json::to_vec_pretty(&meta)?;
     json.push(b'\n');
     write_atomic(&dir.join("stack.json"), &json)?;
+
+    if args.bundle {
+        write_bundle(&p, &stack, &names, &shakes, dir, quality)?;
+    }
 
     let mut stale: Vec<String> = fs::read_dir(dir)
         .map(|rd| {
@@ -402,3 +452,33 @@ mod tests {
         fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+/// The frames as the takes of a sweep: a steady take is its frame file, a shaken take a
+/// smeared copy of it.
+fn write_bundle(
+    p: &SimParams,
+    stack: &sim::SimStack,
+    names: &[String],
+    shakes: &[Shake],
+    dir: &Path,
+    quality: u8,
+) -> Result<()> {
+    let (takes, imu) = bundle::plan(p.planes, shakes, p.seed);
+    let io_err =
+        |e: std::io::Error| anyhow::anyhow!("{}: cannot write the bundle: {e}", dir.display());
+    let mut w = BundleWriter::create(dir, bundle::LENS_RANGE).map_err(io_err)?;
+    for t in &takes {
+        if t.shaken {
+            let smeared = bundle::smear(&stack.frames[t.plane], SHAKE_SMEAR_PX);
+            let bytes = encode(&smeared, image::ImageFormat::Jpeg, quality)?;
+            w.add_take(t.plane, t.lens, t.exposure, "jpg", &bytes)
+        } else {
+            w.add_existing(t.plane, t.lens, t.exposure, &names[t.plane])
+        }
+        .map_err(io_err)?;
+    }
+    w.finish(&imu).map_err(io_err)
+}
+
+/// Length of a shaken take's smear, pixels.
+const SHAKE_SMEAR_PX: usize = 9;

@@ -12,6 +12,7 @@
 //! * [`optics`] maps depth to defocus sigma; [`pose`] draws hand-held poses;
 //! * [`mod@render`] composites the layers, warps, and adds gain and noise.
 
+pub mod bundle;
 pub mod optics;
 pub mod pose;
 pub mod render;

@@ -1,0 +1,5 @@
+//! Implementations of the capture traits: the phone's hardware (V4L2 camera and lens, IIO
+//! gyroscope and accelerometer) and the replay of recorded bundles.
+pub mod iio;
+pub mod replay;
+pub mod v4l2;

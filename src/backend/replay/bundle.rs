@@ -1,0 +1,395 @@
+//! The replay bundle: a directory with `bundle.toml` (the takes), their image files and
+//! `imu.csv` (the IMU trace). `focusd record` writes it on a phone, the simulator writes
+//! synthetic ones, and the replay backends serve it. Both files are parsed defensively: they may
+//! come from another machine.
+
+use crate::capture::{ImuSample, Nanos, Sensor};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::{Component, Path, PathBuf};
+
+/// The current format version, written as `format = 1`.
+pub const FORMAT: u32 = 1;
+/// Largest `imu.csv` read (an hour at 1 kHz of both sensors is ~250 MB; a sweep is seconds).
+const MAX_CSV_BYTES: u64 = 64 << 20;
+const MAX_TAKES: usize = 4096;
+
+/// `bundle.toml`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    pub format: u32,
+    /// The lens range of the camera that recorded it.
+    pub lens_min: i32,
+    pub lens_max: i32,
+    /// Every take in capture order.
+    pub takes: Vec<TakeEntry>,
+}
+
+/// One `[[takes]]` entry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TakeEntry {
+    /// Focus plane, 0 = nearest.
+    pub plane: usize,
+    pub lens: i32,
+    /// Image file, relative to the bundle directory.
+    pub image: String,
+    pub exposure_start_ns: Nanos,
+    pub exposure_end_ns: Nanos,
+}
+
+/// A parsed, checked bundle.
+#[derive(Clone, Debug)]
+pub struct Bundle {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+    /// Sorted by time.
+    pub imu: Vec<ImuSample>,
+}
+
+/// Why a bundle cannot be read; the message names the file (and line) and the problem.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {reason}")]
+pub struct BundleError {
+    pub path: String,
+    pub reason: String,
+}
+
+fn err(path: &Path, reason: impl Into<String>) -> BundleError {
+    BundleError {
+        path: path.display().to_string(),
+        reason: reason.into(),
+    }
+}
+
+impl Bundle {
+    pub fn open(dir: &Path) -> Result<Bundle, BundleError> {
+        let toml_path = dir.join("bundle.toml");
+        let text = std::fs::read_to_string(&toml_path)
+            .map_err(|e| err(&toml_path, format!("cannot read: {e}")))?;
+        let manifest = parse_manifest(&text).map_err(|r| err(&toml_path, r))?;
+        let csv_path = dir.join("imu.csv");
+        let imu = read_imu(&csv_path)?;
+        Ok(Bundle {
+            dir: dir.to_path_buf(),
+            manifest,
+            imu,
+        })
+    }
+
+    /// Planes recorded: one more than the largest plane index.
+    pub fn planes(&self) -> usize {
+        self.manifest
+            .takes
+            .iter()
+            .map(|t| t.plane + 1)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// The lens position recorded for each plane (its first take's).
+    pub fn lens_positions(&self) -> Vec<i32> {
+        (0..self.planes())
+            .map(|p| {
+                self.manifest
+                    .takes
+                    .iter()
+                    .find(|t| t.plane == p)
+                    .map_or(0, |t| t.lens)
+            })
+            .collect()
+    }
+}
+
+/// Parses and checks `bundle.toml`; the error says what is wrong and where.
+pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
+    let m: Manifest = toml::from_str(text).map_err(|e| e.to_string().trim().to_string())?;
+    if m.format != FORMAT {
+        return Err(format!(
+            "format = {} is not supported (this focusd reads format {FORMAT})",
+            m.format
+        ));
+    }
+    if m.lens_min > m.lens_max {
+        return Err(format!(
+            "lens_min = {} is above lens_max = {}",
+            m.lens_min, m.lens_max
+        ));
+    }
+    if m.takes.is_empty() {
+        return Err("no [[takes]]".into());
+    }
+    if m.takes.len() > MAX_TAKES {
+        return Err(format!("{} takes, more than {MAX_TAKES}", m.takes.len()));
+    }
+    for (i, t) in m.takes.iter().enumerate() {
+        let at = format!("take {i} (plane {}, {})", t.plane, t.image);
+        if t.exposure_end_ns <= t.exposure_start_ns {
+            return Err(format!(
+                "{at}: exposure_end_ns {} is not after exposure_start_ns {}",
+                t.exposure_end_ns, t.exposure_start_ns
+            ));
+        }
+        if !(m.lens_min..=m.lens_max).contains(&t.lens) {
+            return Err(format!(
+                "{at}: lens {} is outside {}..={}",
+                t.lens, m.lens_min, m.lens_max
+            ));
+        }
+        if !is_plain_relative(&t.image) {
+            return Err(format!(
+                "{at}: image must be a file name inside the bundle, not a path outside it"
+            ));
+        }
+    }
+    let planes = m.takes.iter().map(|t| t.plane + 1).max().unwrap_or(0);
+    if let Some(p) = (0..planes).find(|&p| !m.takes.iter().any(|t| t.plane == p)) {
+        return Err(format!(
+            "plane {p} has no take (planes run 0..{planes} without gaps)"
+        ));
+    }
+    Ok(m)
+}
+
+/// A relative path that stays inside the directory it is joined to.
+fn is_plain_relative(p: &str) -> bool {
+    !p.is_empty()
+        && Path::new(p)
+            .components()
+            .all(|c| matches!(c, Component::Normal(_)))
+}
+
+fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
+    let len = std::fs::metadata(path)
+        .map_err(|e| err(path, format!("cannot read: {e}")))?
+        .len();
+    if len > MAX_CSV_BYTES {
+        return Err(err(
+            path,
+            format!("{len} bytes, more than the {MAX_CSV_BYTES} a bundle may hold"),
+        ));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| err(path, format!("cannot read: {e}")))?;
+    parse_imu(&text).map_err(|r| err(path, r))
+}
+
+/// Parses `imu.csv`: a `t_ns,sensor,x,y,z` header, then one sample per line, time never going
+/// backwards.
+pub fn parse_imu(text: &str) -> Result<Vec<ImuSample>, String> {
+    let mut lines = text.lines().enumerate();
+    match lines.next() {
+        Some((_, h)) if h.trim() == "t_ns,sensor,x,y,z" => {}
+        _ => return Err("line 1: expected the header t_ns,sensor,x,y,z".into()),
+    }
+    let mut out = Vec::new();
+    let mut last = Nanos::MIN;
+    for (i, line) in lines {
+        let n = i + 1;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != 5 {
+            return Err(format!("line {n}: {} fields, expected 5", f.len()));
+        }
+        let t: Nanos = f[0]
+            .parse()
+            .map_err(|_| format!("line {n}: t_ns {:?} is not an integer", f[0]))?;
+        if t < last {
+            return Err(format!(
+                "line {n}: time goes backwards ({t} ns after {last} ns)"
+            ));
+        }
+        last = t;
+        let sensor = match f[1] {
+            "gyro" => Sensor::Gyro,
+            "accel" => Sensor::Accel,
+            s => return Err(format!("line {n}: sensor {s:?} is not gyro or accel")),
+        };
+        let mut v = [0.0; 3];
+        for (a, s) in v.iter_mut().zip(&f[2..]) {
+            *a = s
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| format!("line {n}: {s:?} is not a finite number"))?;
+        }
+        out.push(ImuSample { t, sensor, v });
+    }
+    if out.is_empty() {
+        return Err("no samples".into());
+    }
+    Ok(out)
+}
+
+/// Writes a bundle: images first, then `imu.csv`, then `bundle.toml` last, each to a temporary
+/// file renamed into place, so a bundle with a manifest is complete.
+pub struct BundleWriter {
+    dir: PathBuf,
+    manifest: Manifest,
+}
+
+impl BundleWriter {
+    pub fn create(dir: &Path, lens_range: (i32, i32)) -> std::io::Result<BundleWriter> {
+        std::fs::create_dir_all(dir)?;
+        Ok(BundleWriter {
+            dir: dir.to_path_buf(),
+            manifest: Manifest {
+                format: FORMAT,
+                lens_min: lens_range.0,
+                lens_max: lens_range.1,
+                takes: Vec::new(),
+            },
+        })
+    }
+
+    /// Adds a take whose encoded image is `bytes`, named after its plane and take.
+    pub fn add_take(
+        &mut self,
+        plane: usize,
+        lens: i32,
+        exposure: (Nanos, Nanos),
+        extension: &str,
+        bytes: &[u8],
+    ) -> std::io::Result<()> {
+        let take = self
+            .manifest
+            .takes
+            .iter()
+            .filter(|t| t.plane == plane)
+            .count();
+        let image = format!("plane{plane:02}_take{take}.{extension}");
+        write_atomic(&self.dir.join(&image), bytes)?;
+        self.manifest.takes.push(TakeEntry {
+            plane,
+            lens,
+            image,
+            exposure_start_ns: exposure.0,
+            exposure_end_ns: exposure.1,
+        });
+        Ok(())
+    }
+
+    /// Adds a take whose image is already in the bundle directory as `file`.
+    pub fn add_existing(
+        &mut self,
+        plane: usize,
+        lens: i32,
+        exposure: (Nanos, Nanos),
+        file: &str,
+    ) -> std::io::Result<()> {
+        if !is_plain_relative(file) || !self.dir.join(file).is_file() {
+            return Err(std::io::Error::other(format!(
+                "{file}: not a file in {}",
+                self.dir.display()
+            )));
+        }
+        self.manifest.takes.push(TakeEntry {
+            plane,
+            lens,
+            image: file.to_string(),
+            exposure_start_ns: exposure.0,
+            exposure_end_ns: exposure.1,
+        });
+        Ok(())
+    }
+
+    pub fn finish(self, imu: &[ImuSample]) -> std::io::Result<()> {
+        let mut csv = String::from("t_ns,sensor,x,y,z\n");
+        for s in imu {
+            let name = match s.sensor {
+                Sensor::Gyro => "gyro",
+                Sensor::Accel => "accel",
+            };
+            let [x, y, z] = s.v;
+            writeln!(csv, "{},{name},{x},{y},{z}", s.t).expect("writing to a String");
+        }
+        write_atomic(&self.dir.join("imu.csv"), csv.as_bytes())?;
+        let toml = toml::to_string(&self.manifest).map_err(std::io::Error::other)?;
+        let text = format!("# focusd replay bundle: see sim-data/README.md\n{toml}");
+        write_atomic(&self.dir.join("bundle.toml"), text.as_bytes())
+    }
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+format = 1
+lens_min = 0
+lens_max = 1023
+[[takes]]
+plane = 0
+lens = 1023
+image = "a.jpg"
+exposure_start_ns = 100
+exposure_end_ns = 200
+[[takes]]
+plane = 1
+lens = 0
+image = "b.jpg"
+exposure_start_ns = 300
+exposure_end_ns = 400
+"#;
+
+    #[test]
+    fn manifest_round_trips_and_bad_ones_say_why() {
+        let m = parse_manifest(GOOD).unwrap();
+        assert_eq!(m.takes.len(), 2);
+        assert_eq!(parse_manifest(&toml::to_string(&m).unwrap()).unwrap(), m);
+        let bad = |from: &str, to: &str| parse_manifest(&GOOD.replacen(from, to, 1)).unwrap_err();
+        assert!(bad("format = 1", "format = 2").contains("format = 2"));
+        assert!(bad("\"a.jpg\"", "\"../x.jpg\"").contains("inside the bundle"));
+        assert!(bad("\"a.jpg\"", "\"/etc/passwd\"").contains("inside the bundle"));
+        assert!(bad("exposure_end_ns = 200", "exposure_end_ns = 50").contains("not after"));
+        assert!(bad("lens = 1023", "lens = 2000").contains("outside 0..=1023"));
+        assert!(bad("plane = 1", "plane = 2").contains("plane 1 has no take"));
+        assert!(bad("lens_max = 1023", "lens_max = 1023\ncolour = 3").contains("colour"));
+        assert!(bad("plane = 0", "plane = -1").contains("plane"));
+    }
+
+    #[test]
+    fn imu_csv_is_checked_line_by_line() {
+        let ok = "t_ns,sensor,x,y,z\n1,gyro,0.1,0,0\n1,accel,0,9.8,0\n5,gyro,0,0,0\n";
+        let s = parse_imu(ok).unwrap();
+        assert_eq!(s.len(), 3);
+        assert_eq!(s[1].sensor, Sensor::Accel);
+        let bad = |t: &str| parse_imu(t).unwrap_err();
+        assert!(bad("t,s,x\n").contains("header"));
+        assert!(bad("t_ns,sensor,x,y,z\n5,gyro,0,0,0\n4,gyro,0,0,0\n")
+            .contains("line 3: time goes backwards"));
+        assert!(bad("t_ns,sensor,x,y,z\n5,gyro,NaN,0,0\n").contains("line 2: \"NaN\""));
+        assert!(bad("t_ns,sensor,x,y,z\n5,magnet,0,0,0\n").contains("magnet"));
+        assert!(bad("t_ns,sensor,x,y,z\n5,gyro,0,0\n").contains("4 fields"));
+        assert!(bad("t_ns,sensor,x,y,z\n").contains("no samples"));
+    }
+
+    #[test]
+    fn a_written_bundle_reads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut w = BundleWriter::create(dir.path(), (0, 1023)).unwrap();
+        w.add_take(0, 1023, (10, 20), "jpg", b"x").unwrap();
+        w.add_take(0, 1023, (30, 40), "jpg", b"y").unwrap();
+        w.add_take(1, 0, (50, 60), "jpg", b"z").unwrap();
+        let imu = [ImuSample {
+            t: 5,
+            sensor: Sensor::Gyro,
+            v: [0.5, -1.25, 3.0],
+        }];
+        w.finish(&imu).unwrap();
+        let b = Bundle::open(dir.path()).unwrap();
+        assert_eq!(b.planes(), 2);
+        assert_eq!(b.lens_positions(), vec![1023, 0]);
+        assert_eq!(b.manifest.takes[1].image, "plane00_take1.jpg");
+        assert_eq!(b.imu, imu.to_vec());
+        assert!(dir.path().join("plane01_take0.jpg").exists());
+    }
+}

@@ -1,0 +1,176 @@
+//! Replay of a recorded bundle: takes and an IMU trace, on simulated time.
+//!
+//! The camera serves, for the plane asked for, that plane's next unused take, so a reshoot gets
+//! the next take; the IMU serves the trace; the clock jumps to whatever the sweep waits for.
+//! Replays are therefore fast and deterministic, and run the sweep's real logic.
+
+pub mod bundle;
+
+use crate::capture::{Camera, CaptureError, Clock, Imu, ImuSample, Nanos, Take};
+use crate::stack::image::Image;
+pub use bundle::{Bundle, BundleError, BundleWriter};
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::Arc;
+
+/// Largest frame a replay decodes (the same bound as `focusd fuse`'s inputs).
+const MAX_PIXELS: u64 = 100_000_000;
+
+/// Simulated monotonic time shared by a replay camera and IMU.
+#[derive(Debug, Default)]
+pub struct SimClock(AtomicI64);
+
+impl SimClock {
+    pub fn starting_at(t: Nanos) -> Arc<SimClock> {
+        Arc::new(SimClock(AtomicI64::new(t)))
+    }
+
+    fn advance_to(&self, t: Nanos) {
+        self.0.fetch_max(t, Ordering::SeqCst);
+    }
+}
+
+impl Clock for Arc<SimClock> {
+    fn now(&self) -> Nanos {
+        self.0.load(Ordering::SeqCst)
+    }
+
+    fn sleep_until(&self, t: Nanos) {
+        self.advance_to(t);
+    }
+}
+
+/// The camera, the IMU and the clock of one bundle; the clock starts at the trace's first
+/// sample.
+pub fn open(bundle: Bundle) -> (ReplayCamera, ReplayImu, Arc<SimClock>) {
+    let bundle = Arc::new(bundle);
+    let clock = SimClock::starting_at(bundle.imu.first().map_or(0, |s| s.t));
+    let camera = ReplayCamera {
+        next: vec![0; bundle.planes()],
+        bundle: bundle.clone(),
+        clock: clock.clone(),
+        plane: None,
+    };
+    let imu = ReplayImu {
+        bundle,
+        clock: clock.clone(),
+    };
+    (camera, imu, clock)
+}
+
+pub struct ReplayCamera {
+    bundle: Arc<Bundle>,
+    clock: Arc<SimClock>,
+    plane: Option<usize>,
+    /// Per plane, how many of its takes have been served.
+    next: Vec<usize>,
+}
+
+impl ReplayCamera {
+    fn bundle_error(&self, reason: String) -> CaptureError {
+        CaptureError::Bundle {
+            path: self.bundle.dir.display().to_string(),
+            reason,
+        }
+    }
+}
+
+impl Camera for ReplayCamera {
+    fn lens_range(&self) -> (i32, i32) {
+        (self.bundle.manifest.lens_min, self.bundle.manifest.lens_max)
+    }
+
+    fn focus(&mut self, plane: usize, _position: i32) -> Result<(), CaptureError> {
+        if plane >= self.next.len() {
+            return Err(self.bundle_error(format!(
+                "the sweep asks for plane {plane}, the bundle has {} planes; set [sweep] planes \
+                 to match",
+                self.next.len()
+            )));
+        }
+        self.plane = Some(plane);
+        Ok(())
+    }
+
+    fn capture(&mut self) -> Result<Take, CaptureError> {
+        let plane = self
+            .plane
+            .ok_or_else(|| self.bundle_error("capture before any focus".into()))?;
+        let k = self.next[plane];
+        let Some(entry) = self
+            .bundle
+            .manifest
+            .takes
+            .iter()
+            .filter(|t| t.plane == plane)
+            .nth(k)
+        else {
+            return Err(self.bundle_error(format!(
+                "plane {plane} has no more takes ({k} recorded, all used)"
+            )));
+        };
+        self.next[plane] += 1;
+        let path = self.bundle.dir.join(&entry.image);
+        let image = decode(&path).map_err(|reason| CaptureError::Bundle {
+            path: path.display().to_string(),
+            reason,
+        })?;
+        self.clock.advance_to(entry.exposure_end_ns);
+        Ok(Take {
+            image,
+            exposure_start: entry.exposure_start_ns,
+            exposure_end: entry.exposure_end_ns,
+        })
+    }
+
+    fn release(&mut self) -> Result<(), CaptureError> {
+        self.plane = None;
+        Ok(())
+    }
+}
+
+/// Decodes an 8-bit RGB frame, refusing images whose header claims more than [`MAX_PIXELS`].
+fn decode(path: &std::path::Path) -> Result<Image<u8>, String> {
+    let reader = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(|e| format!("cannot read: {e}"))?;
+    let (w, h) = reader
+        .into_dimensions()
+        .map_err(|e| format!("not a readable image: {e}"))?;
+    if w as u64 * h as u64 > MAX_PIXELS {
+        return Err(format!("{w}x{h} is larger than {MAX_PIXELS} pixels"));
+    }
+    let img = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(|e| format!("cannot read: {e}"))?
+        .decode()
+        .map_err(|e| format!("not a readable image: {e}"))?
+        .to_rgb8();
+    let (w, h) = img.dimensions();
+    Ok(Image::from_vec(w as usize, h as usize, 3, img.into_raw()))
+}
+
+pub struct ReplayImu {
+    bundle: Arc<Bundle>,
+    clock: Arc<SimClock>,
+}
+
+impl Imu for ReplayImu {
+    fn samples(&mut self, from: Nanos, to: Nanos) -> Result<Vec<ImuSample>, CaptureError> {
+        let trace = &self.bundle.imu;
+        let end = trace.last().map_or(Nanos::MIN, |s| s.t);
+        if to > end {
+            return Err(CaptureError::device(
+                "replay IMU",
+                format!(
+                    "the trace in {} ends at {end} ns, before {to} ns: the sensor stopped \
+                     delivering",
+                    self.bundle.dir.join("imu.csv").display()
+                ),
+            ));
+        }
+        self.clock.advance_to(to);
+        let lo = trace.partition_point(|s| s.t < from);
+        let hi = trace.partition_point(|s| s.t <= to);
+        Ok(trace[lo..hi].to_vec())
+    }
+}

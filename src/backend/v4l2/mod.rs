@@ -1,0 +1,1 @@
+//! The V4L2 camera and its lens (video node and lens sub-device).

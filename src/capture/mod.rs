@@ -1,0 +1,116 @@
+//! Capturing a focus stack: the hardware traits, the motion gate and the sweep.
+//!
+//! The sweep is written once against [`Camera`], [`Imu`] and [`Clock`]; the V4L2 and IIO
+//! backends drive a phone, the replay backends a recorded bundle, so tests run the same
+//! sweep-and-reshoot logic the phone runs.
+
+pub mod gate;
+pub mod sweep;
+
+use crate::stack::image::Image;
+use serde::{Deserialize, Serialize};
+
+/// Nanoseconds on CLOCK_MONOTONIC: the clock of V4L2 buffer timestamps and of IIO timestamps
+/// once `current_timestamp_clock` is set to `monotonic`.
+pub type Nanos = i64;
+
+/// Time as the sweep sees it: the real monotonic clock on a phone, simulated time in replay.
+pub trait Clock: Send {
+    fn now(&self) -> Nanos;
+    /// Returns once `now() >= t`.
+    fn sleep_until(&self, t: Nanos);
+}
+
+/// One captured frame and when it was exposed.
+#[derive(Clone, Debug)]
+pub struct Take {
+    pub image: Image<u8>,
+    pub exposure_start: Nanos,
+    pub exposure_end: Nanos,
+}
+
+/// A camera with a lens that can be moved to an absolute position.
+pub trait Camera: Send {
+    /// The positions the absolute focus control accepts, inclusive (the dw9714: 0..=1023).
+    fn lens_range(&self) -> (i32, i32);
+    /// Moves the lens to `position` for focus plane `plane` (0 = nearest) and waits for it to
+    /// settle. Replay cameras serve the recorded takes of `plane`.
+    fn focus(&mut self, plane: usize, position: i32) -> Result<(), CaptureError>;
+    /// The next frame exposed entirely after the last `focus` returned.
+    fn capture(&mut self) -> Result<Take, CaptureError>;
+    /// Puts the lens back where it was found and stops streaming. Called on every way out of a
+    /// sweep (success, error, cancel); must be safe to call twice.
+    fn release(&mut self) -> Result<(), CaptureError>;
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sensor {
+    /// Angular velocity, rad/s.
+    Gyro,
+    /// Acceleration including gravity, m/s².
+    Accel,
+}
+
+/// One IMU reading in SI units, in the device frame (mount matrix applied).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImuSample {
+    pub t: Nanos,
+    pub sensor: Sensor,
+    pub v: [f64; 3],
+}
+
+/// A gyroscope and an accelerometer.
+pub trait Imu: Send {
+    /// Every sample with `from <= t <= to`, in time order, both sensors. Blocks until samples
+    /// up to `to` have arrived; fails if the sensor stops delivering.
+    fn samples(&mut self, from: Nanos, to: Nanos) -> Result<Vec<ImuSample>, CaptureError>;
+}
+
+/// Why a capture failed. Messages name the device or file and, where there is one, the fix.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    /// A device is missing, refused an operation, or vanished.
+    #[error("{device}: {reason}")]
+    Device { device: String, reason: String },
+    /// The camera has no absolute focus control, so the lens cannot be swept.
+    #[error(
+        "{device} has no absolute focus control (V4L2_CID_FOCUS_ABSOLUTE){detail}: a manual \
+         focus sweep is not possible with this camera"
+    )]
+    NoFocusControl { device: String, detail: String },
+    /// Nothing arrived in time.
+    #[error("{what} timed out after {ms} ms")]
+    Timeout { what: String, ms: u64 },
+    /// The phone never held still long enough to start.
+    #[error(
+        "the phone did not hold still for {still_ms} ms within {timeout_ms} ms; rest it on \
+         something or raise [sweep] still_timeout_ms"
+    )]
+    NotStill { still_ms: u64, timeout_ms: u64 },
+    /// Every take of a plane was shaken and the config says to fail.
+    #[error(
+        "plane {plane}: all {takes} takes were shaken (worst axis {axis} at {ratio:.1}x its \
+         threshold); hold the phone steadier, or set [sweep] on_exhausted = \"keep-least-shaken\""
+    )]
+    Shaken {
+        plane: usize,
+        takes: usize,
+        axis: String,
+        ratio: f64,
+    },
+    /// A replay bundle is malformed or ran out of takes.
+    #[error("{path}: {reason}")]
+    Bundle { path: String, reason: String },
+    #[error("cancelled")]
+    Cancelled,
+}
+
+impl CaptureError {
+    pub fn device(device: impl Into<String>, reason: impl Into<String>) -> Self {
+        CaptureError::Device {
+            device: device.into(),
+            reason: reason.into(),
+        }
+    }
+}

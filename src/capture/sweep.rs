@@ -1,0 +1,309 @@
+//! The focus sweep: wait for stillness, then visit the planes from nearest to farthest,
+//! reshooting every take the motion gate rejects.
+
+use super::gate::{measure, Motion, Rest, Thresholds};
+use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Take};
+use serde::{Deserialize, Serialize};
+
+/// What to do when every take of a plane was shaken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnExhausted {
+    /// Fail the capture with an error naming the plane.
+    Fail,
+    /// Keep the least shaken take and mark it in the report.
+    KeepLeastShaken,
+}
+
+/// The sweep's settings (the `[sweep]` table of the config).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SweepConfig {
+    /// Focus planes, nearest first.
+    pub planes: usize,
+    /// Lens positions of the nearest and the farthest plane; `None`: the ends of the lens
+    /// range, nearest at the top (a voice-coil lens focuses nearer the more current it gets).
+    pub lens_near: Option<i32>,
+    pub lens_far: Option<i32>,
+    /// How long the gyroscope must be still before the sweep starts, and how long to wait for
+    /// that at most.
+    pub still_ms: u64,
+    pub still_timeout_ms: u64,
+    /// RMS angular rate (rad/s, per axis, about its mean) below which the phone counts as still.
+    pub still_gyro_rms: f64,
+    pub thresholds: Thresholds,
+    /// Extra takes of a plane after a rejected one.
+    pub max_reshoots: usize,
+    pub on_exhausted: OnExhausted,
+    /// Focal length in pixels, for the blur estimate (PinePhone Pro: ≈ 2100).
+    pub focal_px: f64,
+}
+
+impl Default for SweepConfig {
+    fn default() -> Self {
+        Self {
+            planes: 6,
+            lens_near: None,
+            lens_far: None,
+            still_ms: 300,
+            still_timeout_ms: 5000,
+            still_gyro_rms: 0.02,
+            thresholds: Thresholds::default(),
+            max_reshoots: 2,
+            on_exhausted: OnExhausted::Fail,
+            focal_px: 2100.0,
+        }
+    }
+}
+
+impl SweepConfig {
+    /// Lens position of each plane, nearest first, evenly spaced.
+    pub fn positions(&self, range: (i32, i32)) -> Vec<i32> {
+        let near = self.lens_near.unwrap_or(range.1) as f64;
+        let far = self.lens_far.unwrap_or(range.0) as f64;
+        let n = self.planes.max(1);
+        (0..n)
+            .map(|i| {
+                let t = if n == 1 {
+                    0.0
+                } else {
+                    i as f64 / (n - 1) as f64
+                };
+                (near + (far - near) * t).round() as i32
+            })
+            .collect()
+    }
+
+    /// Checks the values a sweep cannot run with; the message names the key and the range.
+    pub fn validate(&self, range: (i32, i32)) -> Result<(), String> {
+        if !(2..=64).contains(&self.planes) {
+            return Err(format!("planes = {} is out of range 2..=64", self.planes));
+        }
+        for (key, v) in [("lens_near", self.lens_near), ("lens_far", self.lens_far)] {
+            if let Some(v) = v.filter(|v| !(range.0..=range.1).contains(v)) {
+                return Err(format!(
+                    "{key} = {v} is outside the lens range {}..={}",
+                    range.0, range.1
+                ));
+            }
+        }
+        let positive = [
+            ("thresholds.gyro", self.thresholds.gyro),
+            ("thresholds.accel", self.thresholds.accel),
+            ("still_gyro_rms", self.still_gyro_rms),
+            ("focal_px", self.focal_px),
+        ];
+        if let Some((key, v)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+            return Err(format!("{key} = {v} must be a positive number"));
+        }
+        if self.max_reshoots > 20 {
+            return Err(format!(
+                "max_reshoots = {} is out of range 0..=20",
+                self.max_reshoots
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One take of a plane and its verdict.
+#[derive(Clone, Debug, Serialize)]
+pub struct TakeReport {
+    pub take: usize,
+    pub exposure_start_ns: Nanos,
+    pub exposure_end_ns: Nanos,
+    pub gyro_sum: [f64; 3],
+    pub accel_sum: [f64; 3],
+    pub blur_px: f64,
+    pub accepted: bool,
+    /// Kept although shaken: the retries ran out and the config said to keep the least shaken.
+    pub kept_shaken: bool,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PlaneReport {
+    pub plane: usize,
+    pub lens: i32,
+    pub takes: Vec<TakeReport>,
+}
+
+/// The sweep's result: one frame per plane, nearest first, and what happened.
+pub struct Sweep {
+    pub frames: Vec<Take>,
+    pub planes: Vec<PlaneReport>,
+    /// When the phone was found still, and when the sweep ended.
+    pub started: Nanos,
+    pub ended: Nanos,
+}
+
+/// Reports the sweep's progress and asks whether to go on.
+pub trait Monitor {
+    /// Planes done of `total`, and the stage (`waiting-still`, `sweeping`).
+    fn progress(&self, stage: &'static str, done: usize, total: usize);
+    fn cancelled(&self) -> bool;
+}
+
+/// Reports nothing, never cancels.
+pub struct Unmonitored;
+
+impl Monitor for Unmonitored {
+    fn progress(&self, _: &'static str, _: usize, _: usize) {}
+    fn cancelled(&self) -> bool {
+        false
+    }
+}
+
+/// Runs a sweep. The camera is released on every way out, and its release error is reported
+/// only when the sweep itself succeeded.
+pub fn sweep(
+    camera: &mut dyn Camera,
+    imu: &mut dyn Imu,
+    clock: &dyn Clock,
+    cfg: &SweepConfig,
+    monitor: &dyn Monitor,
+) -> Result<Sweep, CaptureError> {
+    let result = run(camera, imu, clock, cfg, monitor);
+    let released = camera.release();
+    let sweep = result?;
+    released?;
+    Ok(sweep)
+}
+
+fn run(
+    camera: &mut dyn Camera,
+    imu: &mut dyn Imu,
+    clock: &dyn Clock,
+    cfg: &SweepConfig,
+    monitor: &dyn Monitor,
+) -> Result<Sweep, CaptureError> {
+    let range = camera.lens_range();
+    cfg.validate(range)
+        .map_err(|e| CaptureError::device("sweep config", e))?;
+    monitor.progress("waiting-still", 0, cfg.planes);
+    let (rest, started) = wait_still(imu, clock, cfg, monitor)?;
+    let mut frames = Vec::with_capacity(cfg.planes);
+    let mut planes = Vec::with_capacity(cfg.planes);
+    for (plane, lens) in cfg.positions(range).into_iter().enumerate() {
+        monitor.progress("sweeping", plane, cfg.planes);
+        camera.focus(plane, lens)?;
+        let mut report = PlaneReport {
+            plane,
+            lens,
+            takes: Vec::new(),
+        };
+        let mut tried: Vec<(Take, Motion)> = Vec::new();
+        let mut chosen = None;
+        for take in 0..=cfg.max_reshoots {
+            if monitor.cancelled() {
+                return Err(CaptureError::Cancelled);
+            }
+            let t = camera.capture()?;
+            let window = (t.exposure_start, t.exposure_end);
+            let samples = imu.samples(window.0, window.1)?;
+            let m = measure(&samples, window, &rest, &cfg.thresholds, cfg.focal_px)?;
+            report.takes.push(take_report(take, &t, &m));
+            tried.push((t, m));
+            if m.accepted() {
+                chosen = Some(take);
+                break;
+            }
+        }
+        let chosen = match (chosen, cfg.on_exhausted) {
+            (Some(k), _) => k,
+            (None, OnExhausted::KeepLeastShaken) => {
+                let k = (0..tried.len())
+                    .min_by(|&a, &b| tried[a].1.worst_ratio.total_cmp(&tried[b].1.worst_ratio))
+                    .expect("at least one take");
+                report.takes[k].kept_shaken = true;
+                k
+            }
+            (None, OnExhausted::Fail) => {
+                let least = tried
+                    .iter()
+                    .map(|(_, m)| m)
+                    .min_by(|a, b| a.worst_ratio.total_cmp(&b.worst_ratio))
+                    .expect("at least one take");
+                return Err(CaptureError::Shaken {
+                    plane,
+                    takes: tried.len(),
+                    axis: least.worst_axis.to_string(),
+                    ratio: least.worst_ratio,
+                });
+            }
+        };
+        frames.push(tried.swap_remove(chosen).0);
+        planes.push(report);
+    }
+    monitor.progress("sweeping", cfg.planes, cfg.planes);
+    Ok(Sweep {
+        frames,
+        planes,
+        started,
+        ended: clock.now(),
+    })
+}
+
+fn take_report(take: usize, t: &Take, m: &Motion) -> TakeReport {
+    TakeReport {
+        take,
+        exposure_start_ns: t.exposure_start,
+        exposure_end_ns: t.exposure_end,
+        gyro_sum: m.gyro_sum,
+        accel_sum: m.accel_sum,
+        blur_px: m.blur_px,
+        accepted: m.accepted(),
+        kept_shaken: false,
+    }
+}
+
+/// Waits until the gyroscope has been still for `still_ms`, stepping a quarter of that at a
+/// time; returns what rest looks like then, and when.
+fn wait_still(
+    imu: &mut dyn Imu,
+    clock: &dyn Clock,
+    cfg: &SweepConfig,
+    monitor: &dyn Monitor,
+) -> Result<(Rest, Nanos), CaptureError> {
+    let span = cfg.still_ms as Nanos * 1_000_000;
+    let step = (span / 4).max(1_000_000);
+    let begin = clock.now();
+    let mut end = begin + span;
+    loop {
+        if monitor.cancelled() {
+            return Err(CaptureError::Cancelled);
+        }
+        clock.sleep_until(end);
+        let samples = imu.samples(end - span, end)?;
+        if is_still(&samples, cfg.still_gyro_rms) {
+            if let Some(rest) = Rest::from_samples(&samples) {
+                return Ok((rest, end));
+            }
+        }
+        if end - begin >= cfg.still_timeout_ms as Nanos * 1_000_000 {
+            return Err(CaptureError::NotStill {
+                still_ms: cfg.still_ms,
+                timeout_ms: cfg.still_timeout_ms,
+            });
+        }
+        end += step;
+    }
+}
+
+/// Whether the gyroscope's readings stay within `rms` of their mean on every axis (a constant
+/// offset is bias, not motion).
+fn is_still(samples: &[super::ImuSample], rms: f64) -> bool {
+    let gyro: Vec<[f64; 3]> = samples
+        .iter()
+        .filter(|s| s.sensor == Sensor::Gyro)
+        .map(|s| s.v)
+        .collect();
+    if gyro.len() < 2 {
+        return false;
+    }
+    let n = gyro.len() as f64;
+    (0..3).all(|a| {
+        let mean = gyro.iter().map(|v| v[a]).sum::<f64>() / n;
+        let var = gyro.iter().map(|v| (v[a] - mean).powi(2)).sum::<f64>() / n;
+        var.is_finite() && var.sqrt() <= rms
+    })
+}
