@@ -2,4 +2,5 @@
 //! gyroscope and accelerometer) and the replay of recorded bundles.
 pub mod iio;
 pub mod replay;
+pub mod sys;
 pub mod v4l2;

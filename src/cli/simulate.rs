@@ -337,6 +337,36 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     Ok(())
 }
 
+/// The frames as the takes of a sweep: a steady take is its frame file, a shaken take a
+/// smeared copy of it.
+fn write_bundle(
+    p: &SimParams,
+    stack: &sim::SimStack,
+    names: &[String],
+    shakes: &[Shake],
+    dir: &Path,
+    quality: u8,
+) -> Result<()> {
+    let (takes, imu) = bundle::plan(p.planes, shakes, p.seed);
+    let io_err =
+        |e: std::io::Error| anyhow::anyhow!("{}: cannot write the bundle: {e}", dir.display());
+    let mut w = BundleWriter::create(dir, bundle::LENS_RANGE).map_err(io_err)?;
+    for t in &takes {
+        if t.shaken {
+            let smeared = bundle::smear(&stack.frames[t.plane], SHAKE_SMEAR_PX);
+            let bytes = encode(&smeared, image::ImageFormat::Jpeg, quality)?;
+            w.add_take(t.plane, t.lens, t.exposure, "jpg", &bytes)
+        } else {
+            w.add_existing(t.plane, t.lens, t.exposure, &names[t.plane])
+        }
+        .map_err(io_err)?;
+    }
+    w.finish(&imu).map_err(io_err)
+}
+
+/// Length of a shaken take's smear, pixels.
+const SHAKE_SMEAR_PX: usize = 9;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -452,33 +482,3 @@ mod tests {
         fs::remove_dir_all(&dir).unwrap();
     }
 }
-
-/// The frames as the takes of a sweep: a steady take is its frame file, a shaken take a
-/// smeared copy of it.
-fn write_bundle(
-    p: &SimParams,
-    stack: &sim::SimStack,
-    names: &[String],
-    shakes: &[Shake],
-    dir: &Path,
-    quality: u8,
-) -> Result<()> {
-    let (takes, imu) = bundle::plan(p.planes, shakes, p.seed);
-    let io_err =
-        |e: std::io::Error| anyhow::anyhow!("{}: cannot write the bundle: {e}", dir.display());
-    let mut w = BundleWriter::create(dir, bundle::LENS_RANGE).map_err(io_err)?;
-    for t in &takes {
-        if t.shaken {
-            let smeared = bundle::smear(&stack.frames[t.plane], SHAKE_SMEAR_PX);
-            let bytes = encode(&smeared, image::ImageFormat::Jpeg, quality)?;
-            w.add_take(t.plane, t.lens, t.exposure, "jpg", &bytes)
-        } else {
-            w.add_existing(t.plane, t.lens, t.exposure, &names[t.plane])
-        }
-        .map_err(io_err)?;
-    }
-    w.finish(&imu).map_err(io_err)
-}
-
-/// Length of a shaken take's smear, pixels.
-const SHAKE_SMEAR_PX: usize = 9;

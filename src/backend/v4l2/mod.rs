@@ -1,1 +1,15 @@
 //! The V4L2 camera and its lens (video node and lens sub-device).
+//!
+//! Everything that needs no device is in pure modules, tested with synthetic buffers and fake
+//! sysfs trees: [`format`] (choosing and converting pixel formats), [`exposure`] (the exposure
+//! window from buffer timestamps and sensor controls), [`lens`] (finding nodes and the lens
+//! control), [`config`]. [`camera`] is the thin layer over the v4l crate.
+
+pub mod camera;
+pub mod config;
+pub mod exposure;
+pub mod format;
+pub mod lens;
+
+pub use camera::{open, V4l2Camera};
+pub use config::V4l2Config;

@@ -1,0 +1,92 @@
+//! The two C library calls std does not expose, for the V4L2 and IIO backends:
+//! `clock_gettime(CLOCK_MONOTONIC)` (std's `Instant` reads that clock but never shows its value, and IIO and V4L2 timestamps are
+//! compared against it) and `poll(2)` (a blocking read of /dev/iio:deviceN cannot be
+//! interrupted, so the reader waits for readability with a timeout and can be stopped).
+//! Declared directly, since std already links the C library, instead of adding the libc crate.
+//! Linux only: the constants are Linux's, the same on every architecture.
+
+use crate::capture::Nanos;
+use std::ffi::{c_int, c_long, c_short, c_ulong};
+use std::io;
+use std::os::fd::AsRawFd;
+
+const CLOCK_MONOTONIC: c_int = 1;
+const POLLIN: c_short = 1;
+
+/// `struct timespec`: `time_t` is `long` on the glibc and musl ABIs of the phones' targets.
+#[repr(C)]
+struct Timespec {
+    tv_sec: c_long,
+    tv_nsec: c_long,
+}
+
+#[repr(C)]
+struct PollFd {
+    fd: c_int,
+    events: c_short,
+    revents: c_short,
+}
+
+extern "C" {
+    fn clock_gettime(clock: c_int, tp: *mut Timespec) -> c_int;
+    fn poll(fds: *mut PollFd, nfds: c_ulong, timeout: c_int) -> c_int;
+}
+
+/// Now on CLOCK_MONOTONIC, the clock of V4L2 buffer timestamps and (once
+/// `current_timestamp_clock` says `monotonic`) of IIO timestamps.
+pub fn monotonic_now() -> Nanos {
+    let mut ts = Timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec and the call writes only it.
+    let r = unsafe { clock_gettime(CLOCK_MONOTONIC, &mut ts) };
+    // It fails only for a bad clock id or pointer, neither of which can happen here.
+    assert_eq!(r, 0, "clock_gettime(CLOCK_MONOTONIC) failed");
+    ts.tv_sec as Nanos * 1_000_000_000 + ts.tv_nsec as Nanos
+}
+
+/// Waits up to `timeout_ms` for `fd` to be readable (or at end of file, or in error: the next
+/// read says which); `Ok(false)` on timeout or signal.
+pub fn wait_readable(fd: &impl AsRawFd, timeout_ms: c_int) -> io::Result<bool> {
+    let mut p = PollFd {
+        fd: fd.as_raw_fd(),
+        events: POLLIN,
+        revents: 0,
+    };
+    // SAFETY: one valid pollfd, and the count says one.
+    let r = unsafe { poll(&mut p, 1, timeout_ms) };
+    match r {
+        0 => Ok(false),
+        r if r > 0 => Ok(true),
+        _ => {
+            let e = io::Error::last_os_error();
+            if e.kind() == io::ErrorKind::Interrupted {
+                Ok(false)
+            } else {
+                Err(e)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monotonic_clock_moves_with_instant() {
+        let (a, i) = (monotonic_now(), std::time::Instant::now());
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let (b, d) = (monotonic_now(), i.elapsed());
+        assert!(a > 0 && b > a);
+        let diff = (b - a) - d.as_nanos() as i64;
+        assert!(diff.abs() < 5_000_000, "{diff} ns apart");
+    }
+
+    #[test]
+    fn a_plain_file_is_readable() {
+        let f = tempfile::tempfile().unwrap();
+        assert!(wait_readable(&f, 10).unwrap());
+    }
+}
