@@ -14,6 +14,10 @@ struct Args {
 enum Command {
     /// Sweep the focus (or replay a recorded sweep), reshoot shaken frames, register and fuse.
     Capture(cli::capture::CaptureArgs),
+    /// Sweep (or replay) and write every take and the IMU trace as a replay bundle.
+    Record(cli::capture::RecordArgs),
+    /// Check a configuration file: unknown keys and bad values name the line.
+    CheckConfig(cli::CheckConfigArgs),
     /// Fuse a focus stack into one all-in-focus image.
     Fuse(cli::fuse::FuseArgs),
     /// Render a synthetic focus stack with ground truth (frames, truth, depth, transforms).
@@ -24,6 +28,8 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let result = match &args.command {
         Command::Capture(a) => cli::capture::run(a),
+        Command::Record(a) => cli::capture::record(a),
+        Command::CheckConfig(a) => cli::check_config(a),
         Command::Fuse(a) => cli::fuse::run(a),
         Command::Simulate(a) => cli::simulate::run(a),
     };

@@ -5,7 +5,7 @@
 //! Declared directly, since std already links the C library, instead of adding the libc crate.
 //! Linux only: the constants are Linux's, the same on every architecture.
 
-use crate::capture::Nanos;
+use crate::capture::{Clock, Nanos};
 use std::ffi::{c_int, c_long, c_short, c_ulong};
 use std::io;
 use std::os::fd::AsRawFd;
@@ -66,6 +66,22 @@ pub fn wait_readable(fd: &impl AsRawFd, timeout_ms: c_int) -> io::Result<bool> {
             } else {
                 Err(e)
             }
+        }
+    }
+}
+
+/// The real clock of a phone's sweep.
+pub struct MonotonicClock;
+
+impl Clock for MonotonicClock {
+    fn now(&self) -> Nanos {
+        monotonic_now()
+    }
+
+    fn sleep_until(&self, t: Nanos) {
+        let ahead = t - monotonic_now();
+        if ahead > 0 {
+            std::thread::sleep(std::time::Duration::from_nanos(ahead as u64));
         }
     }
 }

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 /// Per-axis thresholds of [`measure`]'s sums.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct Thresholds {
     /// (rad/s)²·s per axis. 2e-5 is a steady ~0.025 rad/s over 33 ms, which on a PinePhone Pro
     /// (f ≈ 2100 px) smears ~1.7 px.

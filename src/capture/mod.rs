@@ -5,6 +5,7 @@
 //! sweep-and-reshoot logic the phone runs.
 
 pub mod gate;
+pub mod record;
 pub mod sweep;
 
 use crate::stack::image::Image;

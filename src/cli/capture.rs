@@ -1,105 +1,90 @@
 //! `focusd capture`: sweep the focus (or replay a recorded sweep), register, fuse, and report
-//! every take the motion gate saw.
+//! every take the motion gate saw. `focusd record`: sweep and write every take and the IMU
+//! trace as a replay bundle, to replay and debug later.
 
-use super::io;
 use super::progress::Bar;
-use crate::backend::replay::{self, Bundle};
-use crate::capture::sweep::{sweep, PlaneReport, Sweep, SweepConfig, Unmonitored};
-use crate::capture::{Camera, Clock, Imu};
-use crate::stack::fuse::{fuse, FuseParams};
-use anyhow::{bail, Context, Result};
-use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use crate::backend::replay::BundleWriter;
+use crate::capture::record::Recording;
+use crate::capture::sweep::{sweep, PlaneReport, Unmonitored};
+use crate::imageio as io;
+use crate::service::config::Config;
+use crate::service::job::{self, Rig, Source};
+use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+
+/// Where the frames come from, and how.
+#[derive(clap::Args, Debug)]
+pub struct SourceArgs {
+    /// Configuration file (TOML, see config/focusd.toml); built-in defaults without it.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Replay a recorded bundle directory instead of using the camera and the IMU.
+    #[arg(long, value_name = "DIR")]
+    pub replay: Option<PathBuf>,
+}
+
+impl SourceArgs {
+    fn open(&self) -> Result<(Config, Rig)> {
+        let config = match &self.config {
+            Some(p) => Config::load(p)?,
+            None => Config::default(),
+        };
+        let source = match &self.replay {
+            Some(dir) => Source::Replay(dir.clone()),
+            None => Source::Device,
+        };
+        let rig = Rig::open(&config, &source)?;
+        for line in &rig.description {
+            eprintln!("focusd: {line}");
+        }
+        Ok((config, rig))
+    }
+}
 
 #[derive(clap::Args, Debug)]
 pub struct CaptureArgs {
     /// Output image (.jpg, .png or .tif).
     #[arg(short, long, value_name = "OUT")]
     pub output: PathBuf,
-    /// Configuration file (TOML); built-in defaults without it.
-    #[arg(long, value_name = "FILE")]
-    pub config: Option<PathBuf>,
-    /// Replay a recorded bundle directory instead of using the camera and the IMU.
-    #[arg(long, value_name = "DIR")]
-    pub replay: Option<PathBuf>,
+    #[command(flatten)]
+    pub source: SourceArgs,
     /// Write a JSON report: every take of every plane with its motion, and stage timings.
     #[arg(long, value_name = "R.json")]
     pub report: Option<PathBuf>,
-    /// JPEG quality, 1..=100.
-    #[arg(long, default_value_t = 92, value_parser = clap::value_parser!(u8).range(1..=100))]
-    pub quality: u8,
-}
-
-/// The parts of the configuration file `capture` reads.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct ConfigFile {
-    sweep: Option<SweepConfig>,
-}
-
-fn load_config(path: &Path) -> Result<ConfigFile> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read", path.display()))?;
-    toml::from_str(&text)
-        .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.to_string().trim()))
-}
-
-#[derive(Serialize)]
-struct Report<'a> {
-    planes: &'a [PlaneReport],
-    /// Sweep duration on the capture clock (simulated time in a replay), ms.
-    sweep_ms: f64,
-    timings_ms: BTreeMap<&'static str, f64>,
-    output: String,
+    /// JPEG quality, 1..=100 (default: the config's [fuse] quality).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub quality: Option<u8>,
 }
 
 pub fn run(a: &CaptureArgs) -> Result<()> {
     io::format_for(&a.output)?;
-    let config = match &a.config {
-        Some(p) => load_config(p)?,
-        None => ConfigFile::default(),
-    };
-    let Some(dir) = &a.replay else {
-        bail!(
-            "capturing from the camera is not wired up yet; replay a recorded bundle with \
-             --replay DIR (e.g. --replay sim-data/bundles/shaken)"
-        );
-    };
-    let bundle = Bundle::open(dir)?;
-    let cfg = config.sweep.unwrap_or_else(|| defaults_for(&bundle));
-    let (mut camera, mut imu, clock) = replay::open(bundle);
-    capture(a, &cfg, &mut camera, &mut imu, &clock)
-}
-
-/// Built-in sweep settings for a bundle: its planes and lens positions.
-fn defaults_for(bundle: &Bundle) -> SweepConfig {
-    let lens = bundle.lens_positions();
-    SweepConfig {
-        planes: bundle.planes(),
-        lens_near: lens.first().copied(),
-        lens_far: lens.last().copied(),
-        ..SweepConfig::default()
+    let (config, mut rig) = a.source.open()?;
+    let mut fuse_cfg = config.fuse.clone();
+    if let Some(q) = a.quality {
+        fuse_cfg.quality = q;
     }
+    let bar = Bar::stderr();
+    let report = job::run(
+        &mut rig,
+        &fuse_cfg,
+        &a.output,
+        a.report.as_deref(),
+        &Unmonitored,
+        &bar,
+    );
+    bar.finish();
+    let report = report?;
+    print_planes(&report.planes);
+    eprintln!(
+        "focusd: captured {} planes, fused into {}",
+        report.planes.len(),
+        a.output.display()
+    );
+    Ok(())
 }
 
-fn capture(
-    a: &CaptureArgs,
-    cfg: &SweepConfig,
-    camera: &mut dyn Camera,
-    imu: &mut dyn Imu,
-    clock: &dyn Clock,
-) -> Result<()> {
-    let t0 = Instant::now();
-    let Sweep {
-        frames,
-        planes,
-        started,
-        ended,
-    } = sweep(camera, imu, clock, cfg, &Unmonitored)?;
-    let capture_ms = t0.elapsed().as_secs_f64() * 1e3;
-    for p in &planes {
+fn print_planes(planes: &[PlaneReport]) {
+    for p in planes {
         let rejected = p.takes.iter().filter(|t| !t.accepted).count();
         let kept = p.takes.iter().find(|t| t.kept_shaken).map(|t| t.take);
         eprintln!(
@@ -112,43 +97,72 @@ fn capture(
             ))
         );
     }
-    let reference = (frames.len() - 1) / 2;
-    let images = frames.into_iter().map(|t| t.image).collect();
-    let params = FuseParams {
-        reference,
-        ..FuseParams::default()
-    };
-    let bar = Bar::stderr();
-    let fused = fuse(images, &params, &bar);
-    bar.finish();
-    let fused = fused?;
-    let t = Instant::now();
-    let bytes = io::encode(&fused.image, io::format_for(&a.output)?, a.quality)?;
-    io::write_atomic(&a.output, &bytes)?;
-    let mut timings = BTreeMap::from([("capture", capture_ms)]);
-    for (stage, d) in &fused.timings {
-        let key = match *stage {
-            "register" | "warp" => "register",
-            _ => "fuse",
-        };
-        *timings.entry(key).or_default() += d.as_secs_f64() * 1e3;
+}
+
+/// IMU trace recorded past the sweep's end, ms.
+const TRACE_TAIL_MS: i64 = 50;
+
+#[derive(clap::Args, Debug)]
+pub struct RecordArgs {
+    /// The bundle directory to write (created; must be empty if it exists).
+    #[arg(short, long, value_name = "DIR")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub source: SourceArgs,
+}
+
+pub fn record(a: &RecordArgs) -> Result<()> {
+    check_empty(&a.output)?;
+    let (_, mut rig) = a.source.open()?;
+    let begin = rig.clock.now();
+    let mut recording = Recording::new(rig.camera.as_mut());
+    let swept = sweep(
+        &mut recording,
+        rig.imu.as_mut(),
+        rig.clock.as_ref(),
+        &rig.sweep,
+        &Unmonitored,
+    );
+    // A failed sweep is worth replaying too: write what it took before saying why it failed.
+    let takes = std::mem::take(&mut recording.takes);
+    // A replay of the bundle asks for samples up to the last exposure's end, and a sensor
+    // counts as delivering up to its last sample: keep a little beyond, where there is any.
+    let (now, tail) = (rig.clock.now(), TRACE_TAIL_MS * 1_000_000);
+    rig.clock.sleep_until(now + tail);
+    let imu = rig
+        .imu
+        .samples(begin, now + tail)
+        .or_else(|_| rig.imu.samples(begin, now))
+        .context("reading back the IMU trace of the sweep")?;
+    let mut w = BundleWriter::create(&a.output, rig.camera.lens_range())
+        .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?;
+    for t in &takes {
+        let png = io::encode(&t.take.image, image::ImageFormat::Png, 100)?;
+        let exposure = (t.take.exposure_start, t.take.exposure_end);
+        w.add_take(t.plane, t.lens, exposure, "png", &png)
+            .with_context(|| format!("{}: cannot write a take", a.output.display()))?;
     }
-    timings.insert("save", t.elapsed().as_secs_f64() * 1e3);
-    if let Some(path) = &a.report {
-        let report = Report {
-            planes: &planes,
-            sweep_ms: (ended - started) as f64 * 1e-6,
-            timings_ms: timings,
-            output: a.output.display().to_string(),
-        };
-        let mut json = serde_json::to_vec_pretty(&report).context("encoding the report")?;
-        json.push(b'\n');
-        io::write_atomic(path, &json)?;
-    }
+    w.finish(&imu)
+        .with_context(|| format!("{}: cannot write the bundle", a.output.display()))?;
     eprintln!(
-        "focusd: captured {} planes, fused into {}",
-        planes.len(),
+        "focusd: recorded {} takes and {} IMU samples into {}",
+        takes.len(),
+        imu.len(),
         a.output.display()
     );
+    let swept = swept?;
+    print_planes(&swept.planes);
+    Ok(())
+}
+
+/// A bundle goes into a new or empty directory, so takes of two sweeps never mix.
+fn check_empty(dir: &Path) -> Result<()> {
+    let used = std::fs::read_dir(dir).is_ok_and(|mut e| e.next().is_some());
+    if used {
+        anyhow::bail!(
+            "{}: the directory is not empty; record into a new one",
+            dir.display()
+        );
+    }
     Ok(())
 }

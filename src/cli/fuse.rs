@@ -1,7 +1,7 @@
 //! `focusd fuse`: fuse a focus stack from image files into one all-in-focus image.
 
-use super::io::{self, Decoded};
 use super::progress::Bar;
+use crate::imageio::{self as io, Decoded};
 use crate::stack::fuse::{fuse, Alignment, FuseError, FuseParams, Method};
 use crate::stack::image::{Image, Sample};
 use crate::stack::metrics::tenengrad;

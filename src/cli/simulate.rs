@@ -6,7 +6,7 @@
 //! reference→frame affines) and `stack.json` (parameters and per-frame focus, gain and pose).
 
 use crate::backend::replay::BundleWriter;
-use crate::cli::io::{encode, save, write_atomic};
+use crate::imageio::{encode, save, write_atomic};
 use crate::sim::bundle::{self, Shake};
 use crate::sim::{self, FrameInfo, SimParams};
 use crate::stack::image::Image;
@@ -370,7 +370,7 @@ const SHAKE_SMEAR_PX: usize = 9;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cli::io::{load, Decoded};
+    use crate::imageio::{load, Decoded};
     use clap::Parser;
 
     #[derive(Parser)]

@@ -67,6 +67,16 @@ pub enum FuseError {
     Register(#[from] RegisterError),
     #[error("the frames have no area in common to crop to; fuse without cropping")]
     NothingToCrop,
+    #[error("cancelled")]
+    Cancelled,
+}
+
+fn go_on(progress: &dyn Progress) -> Result<(), FuseError> {
+    if progress.cancelled() {
+        Err(FuseError::Cancelled)
+    } else {
+        Ok(())
+    }
 }
 
 /// How the frames were brought into the reference's geometry.
@@ -127,6 +137,7 @@ pub fn fuse<T: Sample>(
     progress: &dyn Progress,
 ) -> Result<Fused<T>, FuseError> {
     validate(&frames, params.reference)?;
+    go_on(progress)?;
     let mut timings = Vec::new();
     let mut t = Instant::now();
     let mut lap = |name: &'static str, timings: &mut Vec<(&'static str, Duration)>| {
@@ -142,8 +153,10 @@ pub fn fuse<T: Sample>(
             let registration = register_with(frames.len(), size, luma, reference, p)?;
             progress.advance(1);
             lap("register", &mut timings);
+            go_on(progress)?;
             let a = align(&mut frames, registration, reference, progress);
             lap("warp", &mut timings);
+            go_on(progress)?;
             Some(a)
         }
         None => None,
@@ -166,17 +179,20 @@ pub fn fuse<T: Sample>(
                 progress,
             );
             lap("labels", &mut timings);
+            go_on(progress)?;
             let (image, _) = compose(
                 &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),
                 progress,
             );
             lap("compose", &mut timings);
+            go_on(progress)?;
             (image, labels)
         }
         Method::Pyramid => {
             let r = compose(&frames, Select::MaxContrast, progress);
             lap("pyramid", &mut timings);
+            go_on(progress)?;
             r
         }
     };

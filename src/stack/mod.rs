@@ -19,6 +19,10 @@ pub trait Progress: Sync {
     /// A new stage of `total` steps begins.
     fn stage(&self, name: &'static str, total: usize);
     fn advance(&self, steps: usize);
+    /// Whether the caller wants the work stopped; checked between stages.
+    fn cancelled(&self) -> bool {
+        false
+    }
 }
 
 /// Reports nothing.

@@ -1,0 +1,166 @@
+//! One capture job, as `focusd capture` and the daemon run it: open the camera and the IMU (or
+//! a replay of a recorded bundle), sweep, register and fuse, and write the image and its
+//! report atomically.
+
+use super::config::{Config, FuseConfig};
+use crate::backend::iio::IioImu;
+use crate::backend::replay::{self, Bundle};
+use crate::backend::sys::MonotonicClock;
+use crate::backend::v4l2;
+use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
+use crate::capture::{Camera, CaptureError, Clock, Imu, Take};
+use crate::stack::fuse::{fuse, FuseError};
+use crate::stack::Progress;
+use anyhow::{Context, Result};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Where the frames come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Source {
+    /// The phone's camera and IMU, as the config names them.
+    Device,
+    /// A recorded bundle, on simulated time.
+    Replay(PathBuf),
+}
+
+/// The hardware (or its replay) a job sweeps with, and the sweep settings for it.
+pub struct Rig {
+    pub camera: Box<dyn Camera>,
+    pub imu: Box<dyn Imu>,
+    pub clock: Box<dyn Clock>,
+    pub sweep: SweepConfig,
+    /// What was opened, one line each (for the log).
+    pub description: Vec<String>,
+}
+
+impl Rig {
+    pub fn open(config: &Config, source: &Source) -> Result<Rig> {
+        match source {
+            Source::Replay(dir) => {
+                let bundle = Bundle::open(dir)?;
+                let sweep = config
+                    .sweep
+                    .clone()
+                    .unwrap_or_else(|| defaults_for(&bundle));
+                let description = vec![format!(
+                    "replaying {} ({} takes of {} planes)",
+                    dir.display(),
+                    bundle.manifest.takes.len(),
+                    bundle.planes()
+                )];
+                let (camera, imu, clock) = replay::open(bundle);
+                Ok(Rig {
+                    camera: Box::new(camera),
+                    imu: Box::new(imu),
+                    clock: Box::new(clock),
+                    sweep,
+                    description,
+                })
+            }
+            Source::Device => {
+                // The IMU first: it reads in the background, so the still wait has history.
+                let imu = IioImu::open(&config.imu)?;
+                let camera = v4l2::open(&config.camera)?;
+                let mut description = vec![camera.describe()];
+                description.extend(imu.description.iter().cloned());
+                Ok(Rig {
+                    camera: Box::new(camera),
+                    imu: Box::new(imu),
+                    clock: Box::new(MonotonicClock),
+                    sweep: config.sweep.clone().unwrap_or_default(),
+                    description,
+                })
+            }
+        }
+    }
+}
+
+/// Built-in sweep settings for a bundle: its planes and lens positions.
+fn defaults_for(bundle: &Bundle) -> SweepConfig {
+    let lens = bundle.lens_positions();
+    SweepConfig {
+        planes: bundle.planes(),
+        lens_near: lens.first().copied(),
+        lens_far: lens.last().copied(),
+        ..SweepConfig::default()
+    }
+}
+
+/// What a job did: every take of every plane, and how long each stage took.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub planes: Vec<PlaneReport>,
+    /// Sweep duration on the capture clock (simulated time in a replay), ms.
+    pub sweep_ms: f64,
+    /// Wall time of `capture`, `register`, `fuse` and `save`, ms.
+    pub timings_ms: BTreeMap<&'static str, f64>,
+    pub output: String,
+}
+
+/// Whether a job's error is a cancel rather than a failure.
+pub fn is_cancel(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        matches!(c.downcast_ref(), Some(CaptureError::Cancelled))
+            || matches!(c.downcast_ref(), Some(FuseError::Cancelled))
+    })
+}
+
+/// Sweeps, fuses and writes `output` (and `report` when given), both atomically. The sweep
+/// reports to `monitor`, the fusion to `progress`; both can cancel.
+pub fn run(
+    rig: &mut Rig,
+    fuse_cfg: &FuseConfig,
+    output: &Path,
+    report: Option<&Path>,
+    monitor: &dyn Monitor,
+    progress: &dyn Progress,
+) -> Result<Report> {
+    let format = crate::imageio::format_for(output)?;
+    let t0 = Instant::now();
+    let Sweep {
+        frames,
+        planes,
+        started,
+        ended,
+    } = sweep(
+        rig.camera.as_mut(),
+        rig.imu.as_mut(),
+        rig.clock.as_ref(),
+        &rig.sweep,
+        monitor,
+    )?;
+    let capture_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let params = fuse_cfg.params(frames.len());
+    let images = frames.into_iter().map(|t: Take| t.image).collect();
+    let fused = fuse(images, &params, progress)?;
+    if progress.cancelled() {
+        return Err(FuseError::Cancelled.into());
+    }
+    let t = Instant::now();
+    let bytes = crate::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
+    crate::imageio::write_atomic(output, &bytes)?;
+    let mut timings = BTreeMap::from([("capture", capture_ms)]);
+    for (stage, d) in &fused.timings {
+        let key = match *stage {
+            "register" | "warp" => "register",
+            _ => "fuse",
+        };
+        *timings.entry(key).or_default() += d.as_secs_f64() * 1e3;
+    }
+    timings.insert("save", t.elapsed().as_secs_f64() * 1e3);
+    let r = Report {
+        planes,
+        sweep_ms: (ended - started) as f64 * 1e-6,
+        timings_ms: timings,
+        output: output.display().to_string(),
+    };
+    if let Some(path) = report {
+        let mut json = serde_json::to_vec_pretty(&r).context("encoding the report")?;
+        json.push(b'\n');
+        crate::imageio::write_atomic(path, &json)?;
+    }
+    Ok(r)
+}

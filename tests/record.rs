@@ -1,0 +1,183 @@
+//! `focusd record` writes a sweep as a bundle that replays to the same verdicts, also when the
+//! sweep fails; `--config` and `check-config` refuse bad files naming the line.
+
+use focusd::backend::replay::{self, Bundle};
+use focusd::capture::sweep::{sweep, Sweep, SweepConfig, Unmonitored};
+use focusd::capture::CaptureError;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bundle_dir(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("sim-data/bundles")
+        .join(name)
+}
+
+fn focusd(args: &[&str], paths: &[&Path]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .args(args)
+        .args(paths)
+        .output()
+        .unwrap()
+}
+
+fn replay(dir: &Path) -> Result<Sweep, CaptureError> {
+    let bundle = Bundle::open(dir).unwrap();
+    let lens = bundle.lens_positions();
+    let cfg = SweepConfig {
+        planes: bundle.planes(),
+        lens_near: lens.first().copied(),
+        lens_far: lens.last().copied(),
+        ..SweepConfig::default()
+    };
+    let (mut cam, mut imu, clock) = replay::open(bundle);
+    sweep(&mut cam, &mut imu, &clock, &cfg, &Unmonitored)
+}
+
+/// Every take's (plane, take, accepted, gyro sums).
+fn verdicts(s: &Sweep) -> Vec<(usize, usize, bool, [f64; 3])> {
+    s.planes
+        .iter()
+        .flat_map(|p| {
+            p.takes
+                .iter()
+                .map(|t| (p.plane, t.take, t.accepted, t.gyro_sum))
+        })
+        .collect()
+}
+
+#[test]
+fn a_recorded_sweep_replays_to_the_same_verdicts_and_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let o = focusd(
+        &["record", "--replay"],
+        &[&bundle_dir("shaken"), Path::new("-o"), &rec],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("recorded 8 takes"), "{err}");
+    let original = replay(&bundle_dir("shaken")).unwrap();
+    let again = replay(&rec).unwrap();
+    assert_eq!(verdicts(&again), verdicts(&original));
+    assert_eq!(verdicts(&again).iter().filter(|v| !v.2).count(), 2);
+    // Frames are stored losslessly.
+    for (a, b) in again.frames.iter().zip(&original.frames) {
+        assert_eq!(a.image.data, b.image.data);
+        assert_eq!(
+            (a.exposure_start, a.exposure_end),
+            (b.exposure_start, b.exposure_end)
+        );
+    }
+    // A second recording into the same directory is refused, and leaves it alone.
+    let o = focusd(
+        &["record", "--replay"],
+        &[&bundle_dir("calm"), Path::new("-o"), &rec],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("the directory is not empty"), "{err}");
+    assert_eq!(replay(&rec).unwrap().planes.len(), 6);
+}
+
+#[test]
+fn a_failed_sweep_is_recorded_before_the_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let o = focusd(
+        &["record", "--replay"],
+        &[&bundle_dir("stuck"), Path::new("-o"), &rec],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("plane 3: all 3 takes were shaken"), "{err}");
+    let b = Bundle::open(&rec).unwrap();
+    // Planes 0-2 once, plane 3 three times: everything the sweep took before it gave up.
+    assert_eq!(b.manifest.takes.len(), 6);
+    assert_eq!(b.manifest.takes.iter().filter(|t| t.plane == 3).count(), 3);
+    assert!(!b.imu.is_empty());
+}
+
+#[test]
+fn config_files_are_checked_naming_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/focusd.toml");
+    let o = focusd(&["check-config"], &[&shipped]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (text, line, why) in [
+        (
+            "[sweep]\nplanes = 3\nmax_reshoots = 50\n",
+            3,
+            "[sweep] max_reshoots = 50 is out of range 0..=20",
+        ),
+        ("[fuse]\nlamda = 0.3\n", 2, "unknown field `lamda`"),
+        (
+            "\n[output]\nformat = \"webp\"\n",
+            3,
+            "format = \"webp\" is not one of",
+        ),
+    ] {
+        let bad = dir.path().join("bad.toml");
+        std::fs::write(&bad, text).unwrap();
+        for args in [
+            &["check-config"][..],
+            &["capture", "-o", "x.jpg", "--config"][..],
+        ] {
+            let o = focusd(args, &[&bad]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(1), "{err}");
+            let at = format!("{}:{line}: ", bad.display());
+            assert!(
+                err.contains(&at) && err.contains(why),
+                "{args:?} {text:?}: {err}"
+            );
+        }
+    }
+    // A config's [sweep] and [fuse] apply to a replay: keep the least shaken take of `stuck`.
+    let cfg = dir.path().join("keep.toml");
+    std::fs::write(
+        &cfg,
+        "[sweep]\nlens_near = 1023\nlens_far = 0\non_exhausted = \"keep-least-shaken\"\n\
+         [fuse]\nmethod = \"pyramid\"\n",
+    )
+    .unwrap();
+    let (out, report) = (dir.path().join("o.jpg"), dir.path().join("r.json"));
+    let o = focusd(
+        &["capture", "--replay"],
+        &[
+            &bundle_dir("stuck"),
+            Path::new("--config"),
+            &cfg,
+            Path::new("-o"),
+            &out,
+            Path::new("--report"),
+            &report,
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let kept: Vec<bool> = r["planes"][3]["takes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["kept_shaken"].as_bool().unwrap())
+        .collect();
+    assert_eq!(kept.iter().filter(|k| **k).count(), 1, "{kept:?}");
+}
+
+#[test]
+fn without_a_camera_capture_names_what_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("fake.toml");
+    // An IMU tree with no devices: the error names the sysfs directory.
+    std::fs::create_dir_all(dir.path().join("sys/bus/iio/devices")).unwrap();
+    std::fs::write(
+        &cfg,
+        format!("[imu]\nsysfs_root = {:?}\n", dir.path().join("sys")),
+    )
+    .unwrap();
+    let o = focusd(&["capture", "-o", "x.jpg", "--config"], &[&cfg]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("no IIO device has a gyroscope"), "{err}");
+}
