@@ -16,6 +16,10 @@ enum Command {
     Capture(cli::capture::CaptureArgs),
     /// Sweep (or replay) and write every take and the IMU trace as a replay bundle.
     Record(cli::capture::RecordArgs),
+    /// Run the D-Bus service that captures on request.
+    Serve(cli::serve::ServeArgs),
+    /// Ask the service for a capture (the one-button client).
+    Trigger(cli::serve::TriggerArgs),
     /// Check a configuration file: unknown keys and bad values name the line.
     CheckConfig(cli::CheckConfigArgs),
     /// Fuse a focus stack into one all-in-focus image.
@@ -30,6 +34,8 @@ fn main() -> ExitCode {
         Command::Capture(a) => cli::capture::run(a),
         Command::Record(a) => cli::capture::record(a),
         Command::CheckConfig(a) => cli::check_config(a),
+        Command::Serve(a) => cli::serve::serve(a),
+        Command::Trigger(a) => cli::serve::trigger(a),
         Command::Fuse(a) => cli::fuse::run(a),
         Command::Simulate(a) => cli::simulate::run(a),
     };

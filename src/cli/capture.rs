@@ -30,7 +30,10 @@ impl SourceArgs {
             None => Config::default(),
         };
         let source = match &self.replay {
-            Some(dir) => Source::Replay(dir.clone()),
+            Some(dir) => Source::Replay {
+                dir: dir.clone(),
+                paced: false,
+            },
             None => Source::Device,
         };
         let rig = Rig::open(&config, &source)?;

@@ -2,6 +2,7 @@
 pub mod capture;
 pub mod fuse;
 pub mod progress;
+pub mod serve;
 pub mod simulate;
 
 use crate::service::config::Config;

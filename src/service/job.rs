@@ -22,8 +22,8 @@ use std::time::Instant;
 pub enum Source {
     /// The phone's camera and IMU, as the config names them.
     Device,
-    /// A recorded bundle, on simulated time.
-    Replay(PathBuf),
+    /// A recorded bundle, on simulated time; `paced`: as slow as it was recorded.
+    Replay { dir: PathBuf, paced: bool },
 }
 
 /// The hardware (or its replay) a job sweeps with, and the sweep settings for it.
@@ -39,7 +39,7 @@ pub struct Rig {
 impl Rig {
     pub fn open(config: &Config, source: &Source) -> Result<Rig> {
         match source {
-            Source::Replay(dir) => {
+            Source::Replay { dir, paced } => {
                 let bundle = Bundle::open(dir)?;
                 let sweep = config
                     .sweep
@@ -51,7 +51,7 @@ impl Rig {
                     bundle.manifest.takes.len(),
                     bundle.planes()
                 )];
-                let (camera, imu, clock) = replay::open(bundle);
+                let (camera, imu, clock) = replay::open_paced(bundle, *paced);
                 Ok(Rig {
                     camera: Box::new(camera),
                     imu: Box::new(imu),

@@ -1,4 +1,6 @@
-//! The service side: the configuration file and the capture job that the CLI and the daemon
-//! both run.
+//! The service side: the configuration file, the capture job that the CLI and the daemon both
+//! run, the output directory, and the D-Bus daemon.
 pub mod config;
+pub mod daemon;
 pub mod job;
+pub mod output;

@@ -17,21 +17,32 @@ const MAX_PIXELS: u64 = 100_000_000;
 
 /// Simulated monotonic time shared by a replay camera and IMU.
 #[derive(Debug, Default)]
-pub struct SimClock(AtomicI64);
+pub struct SimClock {
+    now: AtomicI64,
+    /// Also wait out every step in real time, so a replay takes as long as the sweep it
+    /// recorded (for exercising a service's progress, busy and cancel paths).
+    paced: bool,
+}
 
 impl SimClock {
-    pub fn starting_at(t: Nanos) -> Arc<SimClock> {
-        Arc::new(SimClock(AtomicI64::new(t)))
+    pub fn starting_at(t: Nanos, paced: bool) -> Arc<SimClock> {
+        Arc::new(SimClock {
+            now: AtomicI64::new(t),
+            paced,
+        })
     }
 
     fn advance_to(&self, t: Nanos) {
-        self.0.fetch_max(t, Ordering::SeqCst);
+        let before = self.now.fetch_max(t, Ordering::SeqCst);
+        if self.paced && t > before {
+            std::thread::sleep(std::time::Duration::from_nanos((t - before) as u64));
+        }
     }
 }
 
 impl Clock for Arc<SimClock> {
     fn now(&self) -> Nanos {
-        self.0.load(Ordering::SeqCst)
+        self.now.load(Ordering::SeqCst)
     }
 
     fn sleep_until(&self, t: Nanos) {
@@ -42,8 +53,13 @@ impl Clock for Arc<SimClock> {
 /// The camera, the IMU and the clock of one bundle; the clock starts at the trace's first
 /// sample.
 pub fn open(bundle: Bundle) -> (ReplayCamera, ReplayImu, Arc<SimClock>) {
+    open_paced(bundle, false)
+}
+
+/// [`open`], with the clock also waiting in real time when `paced`.
+pub fn open_paced(bundle: Bundle, paced: bool) -> (ReplayCamera, ReplayImu, Arc<SimClock>) {
     let bundle = Arc::new(bundle);
-    let clock = SimClock::starting_at(bundle.imu.first().map_or(0, |s| s.t));
+    let clock = SimClock::starting_at(bundle.imu.first().map_or(0, |s| s.t), paced);
     let camera = ReplayCamera {
         next: vec![0; bundle.planes()],
         bundle: bundle.clone(),

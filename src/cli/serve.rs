@@ -1,0 +1,176 @@
+//! `focusd serve` (the D-Bus daemon) and `focusd trigger` (its one-button client).
+
+use crate::service::daemon::{self, Bus, ServeOptions, BUS_NAME, OBJECT_PATH};
+use anyhow::{bail, Context, Result};
+use futures_util::StreamExt;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Which bus to use: the session bus unless told otherwise.
+#[derive(clap::Args, Debug)]
+pub struct BusArgs {
+    /// The session bus (the default).
+    #[arg(long, conflicts_with_all = ["system", "address"])]
+    pub session: bool,
+    /// The system bus.
+    #[arg(long, conflicts_with = "address")]
+    pub system: bool,
+    /// A bus address, e.g. unix:path=/run/bus (a private bus).
+    #[arg(long, value_name = "ADDRESS")]
+    pub address: Option<String>,
+}
+
+impl BusArgs {
+    fn bus(&self) -> Bus {
+        match (&self.address, self.system) {
+            (Some(a), _) => Bus::Address(a.clone()),
+            (None, true) => Bus::System,
+            (None, false) => Bus::Session,
+        }
+    }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ServeArgs {
+    /// Configuration file (TOML); reread on SIGHUP.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Serve captures replayed from a recorded bundle instead of the camera and the IMU.
+    #[arg(long, value_name = "DIR")]
+    pub replay: Option<PathBuf>,
+    /// With --replay: take as long as the recorded sweep did.
+    #[arg(long, requires = "replay")]
+    pub paced: bool,
+    #[command(flatten)]
+    pub bus: BusArgs,
+}
+
+/// Logs to journald when systemd started us with its journal on stderr, else to stderr.
+fn init_logging() {
+    use tracing_subscriber::prelude::*;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let registry = tracing_subscriber::registry().with(filter);
+    let journald = std::env::var_os("JOURNAL_STREAM").and_then(|_| tracing_journald::layer().ok());
+    match journald {
+        Some(layer) => registry.with(layer).init(),
+        None => registry
+            .with(
+                tracing_subscriber::fmt::layer()
+                    .with_ansi(std::io::stderr().is_terminal())
+                    .with_writer(std::io::stderr),
+            )
+            .init(),
+    }
+}
+
+pub fn serve(a: &ServeArgs) -> Result<()> {
+    init_logging();
+    daemon::serve(ServeOptions {
+        config: a.config.clone(),
+        replay: a.replay.clone(),
+        paced: a.paced,
+        bus: a.bus.bus(),
+    })
+}
+
+#[zbus::proxy(
+    interface = "org.focusd.Focusd1",
+    default_service = "org.focusd.Focusd",
+    default_path = "/org/focusd/Focusd"
+)]
+pub trait Focusd1 {
+    fn capture(&self) -> zbus::Result<String>;
+    fn cancel(&self, job: &str) -> zbus::Result<()>;
+    #[zbus(signal)]
+    fn progress(&self, job: &str, stage: &str, done: u32, total: u32) -> zbus::Result<()>;
+    #[zbus(signal)]
+    fn finished(&self, job: &str, path: &str) -> zbus::Result<()>;
+    #[zbus(signal)]
+    fn failed(&self, job: &str, error: &str) -> zbus::Result<()>;
+    #[zbus(property)]
+    fn state(&self) -> zbus::Result<String>;
+    #[zbus(property)]
+    fn last_result(&self) -> zbus::Result<String>;
+    #[zbus(property)]
+    fn version(&self) -> zbus::Result<String>;
+}
+
+#[derive(clap::Args, Debug)]
+pub struct TriggerArgs {
+    /// Wait for the job to end: print the image's path, or fail with the job's error.
+    #[arg(long)]
+    pub wait: bool,
+    /// With --wait: give up after this many seconds.
+    #[arg(long, default_value_t = 600, requires = "wait")]
+    pub timeout: u64,
+    #[command(flatten)]
+    pub bus: BusArgs,
+}
+
+pub fn trigger(a: &TriggerArgs) -> Result<()> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?
+        .block_on(trigger_async(a))
+}
+
+async fn trigger_async(a: &TriggerArgs) -> Result<()> {
+    let bus = a.bus.bus();
+    let conn = bus
+        .builder()?
+        .build()
+        .await
+        .with_context(|| format!("cannot connect to the {bus:?} bus"))?;
+    let proxy = Focusd1Proxy::new(&conn)
+        .await
+        .with_context(|| format!("{BUS_NAME} at {OBJECT_PATH}"))?;
+    // Subscribed before the call, so a fast job's signals are not missed.
+    let (mut progress, mut finished, mut failed) = (
+        proxy.receive_progress().await?,
+        proxy.receive_finished().await?,
+        proxy.receive_failed().await?,
+    );
+    let job = proxy.capture().await.map_err(|e| match e {
+        zbus::Error::MethodError(name, Some(msg), _) => anyhow::anyhow!("{name}: {msg}"),
+        zbus::Error::MethodError(name, None, _) if name.as_str().ends_with("ServiceUnknown") => {
+            anyhow::anyhow!("{BUS_NAME} is not running on the {bus:?} bus (start `focusd serve`)")
+        }
+        e => anyhow::anyhow!("Capture: {e}"),
+    })?;
+    if !a.wait {
+        println!("{job}");
+        return Ok(());
+    }
+    let deadline = tokio::time::sleep(Duration::from_secs(a.timeout));
+    tokio::pin!(deadline);
+    let mut last_stage = String::new();
+    loop {
+        tokio::select! {
+            Some(s) = progress.next() => {
+                let args = s.args()?;
+                if args.job == job && args.stage != last_stage {
+                    eprintln!("focusd: {}", args.stage);
+                    last_stage = args.stage.to_string();
+                }
+            }
+            Some(s) = finished.next() => {
+                let args = s.args()?;
+                if args.job == job {
+                    println!("{}", args.path);
+                    return Ok(());
+                }
+            }
+            Some(s) = failed.next() => {
+                let args = s.args()?;
+                if args.job == job {
+                    bail!("job {job} failed: {}", args.error);
+                }
+            }
+            _ = &mut deadline => bail!("job {job} did not end within {} s", a.timeout),
+            else => bail!("the connection to {BUS_NAME} closed before job {job} ended"),
+        }
+    }
+}

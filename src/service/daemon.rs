@@ -1,0 +1,514 @@
+//! `focusd serve`: the D-Bus service that owns the capture. Bus name `org.focusd.Focusd`,
+//! object `/org/focusd/Focusd`, interface `org.focusd.Focusd1`.
+//!
+//! The bus runs on tokio; jobs run on one worker thread fed by a crossbeam channel (the camera
+//! and the IMU are used by one job at a time, and a fuse keeps the cores busy for seconds, which
+//! must not stall the bus). The worker reports back through an unbounded tokio channel, which a
+//! task turns into signals.
+
+use super::config::Config;
+use super::job::{self, Rig, Source};
+use super::output;
+use crate::capture::sweep::Monitor;
+use crate::stack::Progress;
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use tokio::signal::unix::{signal, SignalKind};
+use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
+use zbus::object_server::{InterfaceRef, SignalEmitter};
+use zbus::{interface, DBusError};
+
+pub const BUS_NAME: &str = "org.focusd.Focusd";
+pub const OBJECT_PATH: &str = "/org/focusd/Focusd";
+
+/// Which bus to serve on.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Bus {
+    Session,
+    System,
+    /// A bus address (`unix:path=...`), for private buses in tests.
+    Address(String),
+}
+
+impl Bus {
+    /// Errors of a reachable bus surface when the connection is built.
+    pub fn builder(&self) -> Result<zbus::connection::Builder<'static>> {
+        Ok(match self {
+            Bus::Session => zbus::connection::Builder::session(),
+            Bus::System => zbus::connection::Builder::system(),
+            Bus::Address(a) => {
+                let address = a
+                    .parse::<zbus::Address>()
+                    .with_context(|| format!("--address {a:?} is not a D-Bus address"))?;
+                zbus::connection::Builder::address(address)
+            }
+        })
+    }
+}
+
+pub struct ServeOptions {
+    pub config: Option<PathBuf>,
+    pub replay: Option<PathBuf>,
+    /// Replays take as long as the sweep they recorded.
+    pub paced: bool,
+    pub bus: Bus,
+}
+
+/// Errors callers get, as `org.focusd.Error.*`.
+#[derive(Debug, DBusError)]
+#[zbus(prefix = "org.focusd.Error")]
+pub enum FocusdError {
+    #[zbus(error)]
+    ZBus(zbus::Error),
+    /// A job is already running.
+    Busy(String),
+    /// `Cancel` named a job that is not running.
+    NoSuchJob(String),
+    /// The output directory cannot be used.
+    Output(String),
+}
+
+struct Running {
+    id: String,
+    cancel: Arc<AtomicBool>,
+}
+
+struct State {
+    config: Config,
+    /// The worker's inbox; taken at shutdown, which ends the worker after its job.
+    requests: Option<crossbeam_channel::Sender<Request>>,
+    running: Option<Running>,
+    stage: &'static str,
+    last_result: String,
+    jobs: u64,
+}
+
+/// What the service and its worker share.
+struct Shared {
+    state: Mutex<State>,
+    source: Source,
+}
+
+impl Shared {
+    /// A worker that panicked mid-job leaves nothing half-written here (each field is set in
+    /// one step), so a poisoned lock is still good.
+    fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// What the worker reports; the event task turns it into signals.
+enum Event {
+    Stage,
+    Progress {
+        job: String,
+        stage: &'static str,
+        done: u32,
+        total: u32,
+    },
+    Finished {
+        job: String,
+        path: String,
+    },
+    Failed {
+        job: String,
+        error: String,
+    },
+}
+
+struct Request {
+    id: String,
+    config: Config,
+    output: PathBuf,
+    report: Option<PathBuf>,
+    cancel: Arc<AtomicBool>,
+}
+
+pub struct Focusd {
+    shared: Arc<Shared>,
+}
+
+#[interface(name = "org.focusd.Focusd1")]
+impl Focusd {
+    /// Starts a capture (sweep, register, fuse) and returns its job id at once; the result
+    /// comes as `Finished` or `Failed`.
+    fn capture(&self) -> Result<String, FocusdError> {
+        let mut s = self.shared.lock();
+        if let Some(r) = &s.running {
+            return Err(FocusdError::Busy(format!(
+                "job {} is running; wait for its Finished or Failed signal, or Cancel it",
+                r.id
+            )));
+        }
+        let Some(requests) = s.requests.clone() else {
+            return Err(FocusdError::Busy("the service is shutting down".into()));
+        };
+        let (image, report) = output::next_paths(&s.config.output)
+            .map_err(|e| FocusdError::Output(format!("{e:#}")))?;
+        s.jobs += 1;
+        let id = format!("{}", s.jobs);
+        let cancel = Arc::new(AtomicBool::new(false));
+        let request = Request {
+            id: id.clone(),
+            config: s.config.clone(),
+            output: image,
+            report: s.config.output.report.then_some(report),
+            cancel: cancel.clone(),
+        };
+        s.running = Some(Running {
+            id: id.clone(),
+            cancel,
+        });
+        s.stage = "waiting-still";
+        drop(s);
+        requests
+            .send(request)
+            .map_err(|_| FocusdError::Busy("the service is shutting down".into()))?;
+        tracing::info!(job = %id, "capture requested");
+        Ok(id)
+    }
+
+    /// Stops a running job; it ends with `Failed(job, "cancelled")`.
+    fn cancel(&self, job: &str) -> Result<(), FocusdError> {
+        let s = self.shared.lock();
+        match &s.running {
+            Some(r) if r.id == job => {
+                r.cancel.store(true, Ordering::SeqCst);
+                tracing::info!(job, "cancel requested");
+                Ok(())
+            }
+            Some(r) => Err(FocusdError::NoSuchJob(format!(
+                "job {job:?} is not running (job {} is)",
+                r.id
+            ))),
+            None => Err(FocusdError::NoSuchJob(format!(
+                "job {job:?} is not running (no job is)"
+            ))),
+        }
+    }
+
+    /// `idle`, `waiting-still`, `sweeping`, `registering` or `fusing`.
+    #[zbus(property)]
+    fn state(&self) -> String {
+        let s = self.shared.lock();
+        if s.running.is_some() { s.stage } else { "idle" }.to_string()
+    }
+
+    /// The path of the last image written, or "".
+    #[zbus(property)]
+    fn last_result(&self) -> String {
+        self.shared.lock().last_result.clone()
+    }
+
+    #[zbus(property)]
+    fn version(&self) -> String {
+        env!("CARGO_PKG_VERSION").to_string()
+    }
+
+    #[zbus(signal)]
+    async fn progress(
+        emitter: &SignalEmitter<'_>,
+        job: &str,
+        stage: &str,
+        done: u32,
+        total: u32,
+    ) -> zbus::Result<()>;
+
+    #[zbus(signal)]
+    async fn finished(emitter: &SignalEmitter<'_>, job: &str, path: &str) -> zbus::Result<()>;
+
+    #[zbus(signal)]
+    async fn failed(emitter: &SignalEmitter<'_>, job: &str, error: &str) -> zbus::Result<()>;
+}
+
+/// Relays a job's progress to the event task, and its cancel flag to the sweep and the engine.
+struct Reporter {
+    job: String,
+    shared: Arc<Shared>,
+    events: UnboundedSender<Event>,
+    cancel: Arc<AtomicBool>,
+    /// The engine's current stage, its steps and the steps done.
+    stage: Mutex<(&'static str, usize)>,
+    done: AtomicUsize,
+}
+
+impl Reporter {
+    fn set_stage(&self, stage: &'static str) {
+        let mut s = self.shared.lock();
+        if s.stage != stage {
+            s.stage = stage;
+            drop(s);
+            let _ = self.events.send(Event::Stage);
+        }
+    }
+
+    fn send(&self, stage: &'static str, done: usize, total: usize) {
+        let _ = self.events.send(Event::Progress {
+            job: self.job.clone(),
+            stage,
+            done: done as u32,
+            total: total as u32,
+        });
+    }
+}
+
+impl Monitor for Reporter {
+    fn progress(&self, stage: &'static str, done: usize, total: usize) {
+        self.set_stage(stage);
+        self.send(stage, done, total);
+    }
+
+    fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::SeqCst)
+    }
+}
+
+impl Progress for Reporter {
+    fn stage(&self, name: &'static str, total: usize) {
+        self.set_stage(match name {
+            "register" | "warp" => "registering",
+            _ => "fusing",
+        });
+        *self.stage.lock().unwrap_or_else(|e| e.into_inner()) = (name, total);
+        self.done.store(0, Ordering::SeqCst);
+        self.send(name, 0, total);
+    }
+
+    /// Sends at most one signal per percent of a stage.
+    fn advance(&self, steps: usize) {
+        let (name, total) = *self.stage.lock().unwrap_or_else(|e| e.into_inner());
+        let before = self.done.fetch_add(steps, Ordering::SeqCst);
+        let after = before + steps;
+        let percent = |d: usize| d * 100 / total.max(1);
+        if percent(after) != percent(before) || after == total {
+            self.send(name, after.min(total), total);
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::SeqCst)
+    }
+}
+
+/// Runs jobs one after another until the request channel closes.
+fn worker(
+    shared: Arc<Shared>,
+    requests: crossbeam_channel::Receiver<Request>,
+    events: UnboundedSender<Event>,
+) {
+    for r in requests {
+        let reporter = Reporter {
+            job: r.id.clone(),
+            shared: shared.clone(),
+            events: events.clone(),
+            cancel: r.cancel.clone(),
+            stage: Mutex::new(("", 0)),
+            done: AtomicUsize::new(0),
+        };
+        let _ = events.send(Event::Stage);
+        let result = Rig::open(&r.config, &shared.source).and_then(|mut rig| {
+            for line in &rig.description {
+                tracing::info!(job = %r.id, "{line}");
+            }
+            job::run(
+                &mut rig,
+                &r.config.fuse,
+                &r.output,
+                r.report.as_deref(),
+                &reporter,
+                &reporter,
+            )
+        });
+        // Idle before the signal, so a client may start the next job as soon as it hears.
+        let event = {
+            let mut s = shared.lock();
+            s.running = None;
+            s.stage = "idle";
+            match result {
+                Ok(_) => {
+                    s.last_result = r.output.display().to_string();
+                    tracing::info!(job = %r.id, path = %s.last_result, "finished");
+                    Event::Finished {
+                        job: r.id,
+                        path: s.last_result.clone(),
+                    }
+                }
+                Err(e) => {
+                    let error = if job::is_cancel(&e) {
+                        "cancelled".to_string()
+                    } else {
+                        format!("{e:#}")
+                    };
+                    tracing::warn!(job = %r.id, %error, "failed");
+                    Event::Failed { job: r.id, error }
+                }
+            }
+        };
+        let _ = events.send(Event::Stage);
+        let _ = events.send(event);
+    }
+}
+
+/// Turns worker events into signals and property changes.
+async fn relay(iface: InterfaceRef<Focusd>, mut events: UnboundedReceiver<Event>) {
+    while let Some(e) = events.recv().await {
+        let emitter = iface.signal_emitter();
+        let sent = match e {
+            Event::Stage => {
+                let i = iface.get().await;
+                let state = i.state();
+                notify_status(&state);
+                i.state_changed(emitter).await
+            }
+            Event::Progress {
+                job,
+                stage,
+                done,
+                total,
+            } => Focusd::progress(emitter, &job, stage, done, total).await,
+            Event::Finished { job, path } => {
+                let r = Focusd::finished(emitter, &job, &path).await;
+                let _ = iface.get().await.last_result_changed(emitter).await;
+                r
+            }
+            Event::Failed { job, error } => Focusd::failed(emitter, &job, &error).await,
+        };
+        if let Err(e) = sent {
+            tracing::warn!("cannot emit a signal: {e}");
+        }
+    }
+}
+
+fn notify_status(state: &str) {
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(state)]);
+}
+
+fn load(path: &Option<PathBuf>) -> Result<Config> {
+    Ok(match path {
+        Some(p) => Config::load(p)?,
+        None => Config::default(),
+    })
+}
+
+/// Serves until SIGTERM or SIGINT, which cancel a running job and wait for it to end.
+pub fn serve(opts: ServeOptions) -> Result<()> {
+    let config = load(&opts.config)?;
+    output::prepare(&config.output)?;
+    let source = match &opts.replay {
+        Some(dir) => Source::Replay {
+            dir: dir.clone(),
+            paced: opts.paced,
+        },
+        None => Source::Device,
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(run(opts, config, source))
+}
+
+async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
+    let (requests, inbox) = crossbeam_channel::unbounded();
+    let (events, outbox) = unbounded_channel::<Event>();
+    let shared = Arc::new(Shared {
+        state: Mutex::new(State {
+            config,
+            requests: Some(requests),
+            running: None,
+            stage: "idle",
+            last_result: String::new(),
+            jobs: 0,
+        }),
+        source,
+    });
+    let service = Focusd {
+        shared: shared.clone(),
+    };
+    let conn = opts
+        .bus
+        .builder()?
+        .name(BUS_NAME)
+        .serve_at(OBJECT_PATH, service)
+        .build()
+        .await
+        .with_context(|| {
+            format!("cannot serve {BUS_NAME} on the {:?} bus (is another focusd running, or does the D-Bus policy not let this user own the name?)", opts.bus)
+        })?;
+    let iface = conn
+        .object_server()
+        .interface::<_, Focusd>(OBJECT_PATH)
+        .await?;
+    let worker = {
+        let shared = shared.clone();
+        std::thread::Builder::new()
+            .name("focusd-job".into())
+            .spawn(move || worker(shared, inbox, events))
+            .context("starting the job thread")?
+    };
+    let relay = tokio::spawn(relay(iface.clone(), outbox));
+    let _ = sd_notify::notify(&[
+        sd_notify::NotifyState::Ready,
+        sd_notify::NotifyState::Status("idle"),
+    ]);
+    if let Some(period) = sd_notify::watchdog_enabled() {
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(period / 2);
+            loop {
+                tick.tick().await;
+                let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            }
+        });
+    }
+    tracing::info!("serving {BUS_NAME} at {OBJECT_PATH}");
+    let (mut term, mut int, mut hup) = (
+        signal(SignalKind::terminate())?,
+        signal(SignalKind::interrupt())?,
+        signal(SignalKind::hangup())?,
+    );
+    loop {
+        tokio::select! {
+            _ = term.recv() => break,
+            _ = int.recv() => break,
+            _ = hup.recv() => reload(&opts.config, &shared),
+        }
+    }
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    tracing::info!("stopping");
+    {
+        let mut s = shared.lock();
+        if let Some(r) = &s.running {
+            r.cancel.store(true, Ordering::SeqCst);
+        }
+        // Closing the inbox ends the worker once the cancelled job has cleaned up; its
+        // Failed signal still goes out.
+        s.requests = None;
+    }
+    tokio::task::spawn_blocking(move || worker.join())
+        .await?
+        .map_err(|_| anyhow::anyhow!("the job thread panicked"))?;
+    relay.await?;
+    Ok(())
+}
+
+/// SIGHUP: the new config replaces the old only if it is good.
+fn reload(path: &Option<PathBuf>, shared: &Shared) {
+    let Some(p) = path else {
+        tracing::info!("SIGHUP: no config file to reload (running on the built-in defaults)");
+        return;
+    };
+    let loaded = Config::load(p).map_err(anyhow::Error::from).and_then(|c| {
+        output::prepare(&c.output)?;
+        Ok(c)
+    });
+    match loaded {
+        Ok(c) => {
+            shared.lock().config = c;
+            tracing::info!("SIGHUP: reloaded {}", p.display());
+        }
+        Err(e) => tracing::error!("SIGHUP: {e:#}; keeping the old config"),
+    }
+}

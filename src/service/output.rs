@@ -1,0 +1,101 @@
+//! The output directory: the only place the daemon writes images, under names it makes
+//! itself from the capture time, so no caller can steer a write anywhere else.
+
+use super::config::OutputConfig;
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// Creates the output directory if needed.
+pub fn prepare(out: &OutputConfig) -> Result<()> {
+    std::fs::create_dir_all(&out.dir).with_context(|| {
+        format!(
+            "[output] dir {}: cannot create it (set [output] dir to a writable directory)",
+            out.dir.display()
+        )
+    })
+}
+
+/// The image and report paths of a capture made now: `focus-YYYYMMDD-HHMMSS.jpg` in UTC, with
+/// `-2`, `-3`, ... when that name is taken.
+pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf)> {
+    prepare(out)?;
+    let secs = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let stem = format!("focus-{}", utc_stamp(secs));
+    for n in 1.. {
+        let name = if n == 1 {
+            stem.clone()
+        } else {
+            format!("{stem}-{n}")
+        };
+        let image = out.dir.join(format!("{name}.{}", out.format));
+        let report = out.dir.join(format!("{name}.json"));
+        if !image.exists() && !report.exists() {
+            return Ok((image, report));
+        }
+    }
+    unreachable!("an unbounded range ends only by returning")
+}
+
+/// `YYYYMMDD-HHMMSS` of a Unix time, in UTC (Howard Hinnant's civil-from-days).
+fn utc_stamp(secs: u64) -> String {
+    let (days, rest) = ((secs / 86_400) as i64, secs % 86_400);
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}{month:02}{day:02}-{:02}{:02}{:02}",
+        rest / 3600,
+        rest / 60 % 60,
+        rest % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stamps_are_utc_calendar_times() {
+        assert_eq!(utc_stamp(0), "19700101-000000");
+        assert_eq!(utc_stamp(951_782_400), "20000229-000000");
+        assert_eq!(utc_stamp(1_796_083_199), "20261130-235959");
+        assert_eq!(utc_stamp(4_107_542_400), "21000301-000000");
+    }
+
+    #[test]
+    fn names_never_collide_and_stay_in_the_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = OutputConfig {
+            dir: dir.path().join("new/sub"),
+            ..OutputConfig::default()
+        };
+        let (a, r) = next_paths(&out).unwrap();
+        assert!(out.dir.is_dir());
+        assert_eq!(a.parent(), Some(out.dir.as_path()));
+        assert_eq!(r.extension().unwrap(), "json");
+        std::fs::write(&a, b"x").unwrap();
+        let (b, _) = next_paths(&out).unwrap();
+        assert_ne!(a, b);
+        assert!(
+            b.to_string_lossy().ends_with("-2.jpg")
+                || !b
+                    .to_string_lossy()
+                    .contains(a.file_stem().unwrap().to_str().unwrap())
+        );
+        let blocked = OutputConfig {
+            dir: dir.path().join("new/sub").join(a.file_name().unwrap()),
+            ..OutputConfig::default()
+        };
+        let e = format!("{:#}", next_paths(&blocked).unwrap_err());
+        assert!(e.contains("cannot create it"), "{e}");
+    }
+}
