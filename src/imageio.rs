@@ -45,6 +45,12 @@ pub fn load(path: &Path) -> Result<Decoded> {
         .with_context(|| format!("{name}: cannot open"))?
         .with_guessed_format()
         .with_context(|| format!("{name}: cannot read"))?;
+    if reader.format() == Some(ImageFormat::Jpeg) {
+        let bytes = fs::read(path).with_context(|| format!("{name}: cannot read"))?;
+        if !jpeg_complete(&bytes) {
+            bail!("{name}: corrupt or truncated image: the JPEG data ends before its end-of-image marker");
+        }
+    }
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(w);
     limits.max_image_height = Some(h);
@@ -54,6 +60,47 @@ pub fn load(path: &Path) -> Result<Decoded> {
         .decode()
         .map_err(|e| anyhow!("{name}: corrupt or truncated image: {e}"))?;
     Ok(from_dynamic(img))
+}
+
+/// Decodes any supported file as 8-bit RGB (replayed frames).
+pub fn load_rgb8(path: &Path) -> Result<Image<u8>> {
+    let img = match load(path)? {
+        Decoded::U8(i) => i,
+        Decoded::U16(i) => i.convert(),
+    };
+    Ok(if img.channels == 3 {
+        img
+    } else {
+        Image::from_fn(img.width, img.height, 3, |x, y, _| img.at(x, y, 0))
+    })
+}
+
+/// Whether a JPEG's entropy-coded data is followed by its end-of-image marker. The decoder
+/// fills a truncated file's missing rows with grey without an error, so this is checked
+/// first: the marker segments are walked to the first start-of-scan (skipping APP segments,
+/// whose EXIF thumbnails hold markers of their own), and after it FF D9 can only be the
+/// marker, since scan data escapes FF as FF 00.
+fn jpeg_complete(b: &[u8]) -> bool {
+    if !b.starts_with(&[0xFF, 0xD8]) {
+        return false;
+    }
+    let mut i = 2;
+    while i + 4 <= b.len() {
+        if b[i] != 0xFF {
+            return false;
+        }
+        let marker = b[i + 1];
+        if marker == 0xFF {
+            i += 1;
+            continue;
+        }
+        let len = usize::from(u16::from_be_bytes([b[i + 2], b[i + 3]]));
+        if marker == 0xDA {
+            return b[i + 2..].windows(2).any(|w| w == [0xFF, 0xD9]);
+        }
+        i += 2 + len;
+    }
+    false
 }
 
 fn from_dynamic(img: DynamicImage) -> Decoded {

@@ -101,6 +101,18 @@ fn corrupt_and_truncated_images_are_named() {
         "{err}"
     );
 
+    // A JPEG cut short decodes without complaint (the rest comes out grey), so focusd checks
+    // for its end-of-image marker; one whole JPEG with its EXIF thumbnail still loads.
+    let jpeg = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/handheld/frame_03.jpg");
+    let bytes = std::fs::read(&jpeg).unwrap();
+    let cut = c.path("cut.jpg");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let err = c.fails(&[jpeg.clone(), cut], &c.path("out.jpg"));
+    assert!(
+        err.contains("cut.jpg") && err.contains("ends before its end-of-image marker"),
+        "{err}"
+    );
+
     let text = c.path("notes.txt");
     std::fs::write(&text, "hello").unwrap();
     let err = c.fails(&[f[0].clone(), text], &c.path("out.jpg"));

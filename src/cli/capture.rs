@@ -33,6 +33,7 @@ impl SourceArgs {
             Some(dir) => Source::Replay {
                 dir: dir.clone(),
                 paced: false,
+                faults: Vec::new(),
             },
             None => Source::Device,
         };

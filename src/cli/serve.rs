@@ -42,6 +42,10 @@ pub struct ServeArgs {
     /// With --replay: take as long as the recorded sweep did.
     #[arg(long, requires = "replay")]
     pub paced: bool,
+    /// With --replay: inject a failure into the first job, for tests of the failure paths:
+    /// camera-gone:P, frame-timeout:P, imu-stops:P or imu-nan:P (P a plane). Repeatable.
+    #[arg(long, requires = "replay", value_name = "FAULT")]
+    pub fault: Vec<crate::backend::replay::faults::Fault>,
     #[command(flatten)]
     pub bus: BusArgs,
 }
@@ -71,6 +75,7 @@ pub fn serve(a: &ServeArgs) -> Result<()> {
         config: a.config.clone(),
         replay: a.replay.clone(),
         paced: a.paced,
+        faults: a.fault.clone(),
         bus: a.bus.bus(),
     })
 }

@@ -9,6 +9,7 @@
 use super::config::Config;
 use super::job::{self, Rig, Source};
 use super::output;
+use crate::backend::replay::faults::Fault;
 use crate::capture::sweep::Monitor;
 use crate::stack::Progress;
 use anyhow::{Context, Result};
@@ -53,6 +54,8 @@ pub struct ServeOptions {
     pub replay: Option<PathBuf>,
     /// Replays take as long as the sweep they recorded.
     pub paced: bool,
+    /// Failures injected into the first replayed job (the next one shows the recovery).
+    pub faults: Vec<Fault>,
     pub bus: Bus,
 }
 
@@ -83,6 +86,8 @@ struct State {
     stage: &'static str,
     last_result: String,
     jobs: u64,
+    /// Injected into the next job, once.
+    faults: Vec<Fault>,
 }
 
 /// What the service and its worker share.
@@ -120,6 +125,7 @@ enum Event {
 
 struct Request {
     id: String,
+    faults: Vec<Fault>,
     config: Config,
     output: PathBuf,
     report: Option<PathBuf>,
@@ -152,6 +158,7 @@ impl Focusd {
         let cancel = Arc::new(AtomicBool::new(false));
         let request = Request {
             id: id.clone(),
+            faults: std::mem::take(&mut s.faults),
             config: s.config.clone(),
             output: image,
             report: s.config.output.report.then_some(report),
@@ -308,7 +315,15 @@ fn worker(
             done: AtomicUsize::new(0),
         };
         let _ = events.send(Event::Stage);
-        let result = Rig::open(&r.config, &shared.source).and_then(|mut rig| {
+        let source = match &shared.source {
+            Source::Replay { dir, paced, .. } => Source::Replay {
+                dir: dir.clone(),
+                paced: *paced,
+                faults: r.faults.clone(),
+            },
+            Source::Device => Source::Device,
+        };
+        let result = Rig::open(&r.config, &source).and_then(|mut rig| {
             for line in &rig.description {
                 tracing::info!(job = %r.id, "{line}");
             }
@@ -400,6 +415,7 @@ pub fn serve(opts: ServeOptions) -> Result<()> {
         Some(dir) => Source::Replay {
             dir: dir.clone(),
             paced: opts.paced,
+            faults: Vec::new(),
         },
         None => Source::Device,
     };
@@ -422,6 +438,7 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
             stage: "idle",
             last_result: String::new(),
             jobs: 0,
+            faults: opts.faults.clone(),
         }),
         source,
     });

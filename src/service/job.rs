@@ -4,6 +4,7 @@
 
 use super::config::{Config, FuseConfig};
 use crate::backend::iio::IioImu;
+use crate::backend::replay::faults::{self, Fault};
 use crate::backend::replay::{self, Bundle};
 use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
@@ -22,8 +23,13 @@ use std::time::Instant;
 pub enum Source {
     /// The phone's camera and IMU, as the config names them.
     Device,
-    /// A recorded bundle, on simulated time; `paced`: as slow as it was recorded.
-    Replay { dir: PathBuf, paced: bool },
+    /// A recorded bundle, on simulated time; `paced`: as slow as it was recorded; `faults`:
+    /// failures injected at given planes (for tests of the failure paths).
+    Replay {
+        dir: PathBuf,
+        paced: bool,
+        faults: Vec<Fault>,
+    },
 }
 
 /// The hardware (or its replay) a job sweeps with, and the sweep settings for it.
@@ -39,7 +45,7 @@ pub struct Rig {
 impl Rig {
     pub fn open(config: &Config, source: &Source) -> Result<Rig> {
         match source {
-            Source::Replay { dir, paced } => {
+            Source::Replay { dir, paced, faults } => {
                 let bundle = Bundle::open(dir)?;
                 let sweep = config
                     .sweep
@@ -52,9 +58,15 @@ impl Rig {
                     bundle.planes()
                 )];
                 let (camera, imu, clock) = replay::open_paced(bundle, *paced);
+                let (camera, imu): (Box<dyn Camera>, Box<dyn Imu>) = if faults.is_empty() {
+                    (Box::new(camera), Box::new(imu))
+                } else {
+                    let (c, i) = faults::inject(camera, imu, faults);
+                    (Box::new(c), Box::new(i))
+                };
                 Ok(Rig {
-                    camera: Box::new(camera),
-                    imu: Box::new(imu),
+                    camera,
+                    imu,
                     clock: Box::new(clock),
                     sweep,
                     description,

@@ -5,15 +5,12 @@
 //! Replays are therefore fast and deterministic, and run the sweep's real logic.
 
 pub mod bundle;
+pub mod faults;
 
 use crate::capture::{Camera, CaptureError, Clock, Imu, ImuSample, Nanos, Take};
-use crate::stack::image::Image;
 pub use bundle::{Bundle, BundleError, BundleWriter};
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
-
-/// Largest frame a replay decodes (the same bound as `focusd fuse`'s inputs).
-const MAX_PIXELS: u64 = 100_000_000;
 
 /// Simulated monotonic time shared by a replay camera and IMU.
 #[derive(Debug, Default)]
@@ -126,9 +123,10 @@ impl Camera for ReplayCamera {
         };
         self.next[plane] += 1;
         let path = self.bundle.dir.join(&entry.image);
-        let image = decode(&path).map_err(|reason| CaptureError::Bundle {
-            path: path.display().to_string(),
-            reason,
+        // The error names the file already.
+        let image = crate::imageio::load_rgb8(&path).map_err(|e| CaptureError::Bundle {
+            path: self.bundle.dir.join("bundle.toml").display().to_string(),
+            reason: format!("take {k} of plane {plane}: {e:#}"),
         })?;
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
@@ -139,30 +137,11 @@ impl Camera for ReplayCamera {
     }
 
     fn release(&mut self) -> Result<(), CaptureError> {
-        self.plane = None;
+        if self.plane.take().is_some() {
+            tracing::info!("replay camera released, lens back at its start position");
+        }
         Ok(())
     }
-}
-
-/// Decodes an 8-bit RGB frame, refusing images whose header claims more than [`MAX_PIXELS`].
-fn decode(path: &std::path::Path) -> Result<Image<u8>, String> {
-    let reader = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .map_err(|e| format!("cannot read: {e}"))?;
-    let (w, h) = reader
-        .into_dimensions()
-        .map_err(|e| format!("not a readable image: {e}"))?;
-    if w as u64 * h as u64 > MAX_PIXELS {
-        return Err(format!("{w}x{h} is larger than {MAX_PIXELS} pixels"));
-    }
-    let img = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .map_err(|e| format!("cannot read: {e}"))?
-        .decode()
-        .map_err(|e| format!("not a readable image: {e}"))?
-        .to_rgb8();
-    let (w, h) = img.dimensions();
-    Ok(Image::from_vec(w as usize, h as usize, 3, img.into_raw()))
 }
 
 pub struct ReplayImu {
