@@ -125,6 +125,9 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     }
     for (i, t) in m.takes.iter().enumerate() {
         let at = format!("take {i} (plane {}, {})", t.plane, t.image);
+        if t.plane >= MAX_TAKES {
+            return Err(format!("{at}: plane {} is beyond the {MAX_TAKES} a bundle can hold", t.plane));
+        }
         if t.exposure_end_ns <= t.exposure_start_ns {
             return Err(format!(
                 "{at}: exposure_end_ns {} is not after exposure_start_ns {}",
@@ -391,5 +394,29 @@ exposure_end_ns = 400
         assert_eq!(b.manifest.takes[1].image, "plane00_take1.jpg");
         assert_eq!(b.imu, imu.to_vec());
         assert!(dir.path().join("plane01_take0.jpg").exists());
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn manifest_parser_never_panics(
+            plane in proptest::prop_oneof![0usize..4, proptest::num::usize::ANY],
+            lens in proptest::num::i32::ANY,
+            start in proptest::num::i64::ANY,
+            end in proptest::num::i64::ANY,
+            image in "[a-z./]{0,12}",
+        ) {
+            let text = format!(
+                "format = 1\nlens_min = 0\nlens_max = 1023\n[[takes]]\nplane = {plane}\nlens = {lens}\n\
+                 image = {image:?}\nexposure_start_ns = {start}\nexposure_end_ns = {end}\n"
+            );
+            let _ = parse_manifest(&text);
+        }
+
+        #[test]
+        fn imu_parser_never_panics(s in "t_ns,sensor,x,y,z\n([-0-9]{0,20},(gyro|accel|x),[-0-9.eEnaif]{0,8},[0-9.]{0,4},[0-9.]{0,4}\n){0,5}") {
+            if let Ok(v) = parse_imu(&s) {
+                proptest::prop_assert!(v.windows(2).all(|w| w[0].t <= w[1].t));
+            }
+        }
     }
 }

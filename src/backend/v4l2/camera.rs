@@ -45,6 +45,10 @@ pub struct V4l2Camera {
     settled_at: Option<Nanos>,
     /// The previous frame's timestamp, for the frame interval when the driver gives none.
     last_stamp: Option<Nanos>,
+    /// A dequeue failed (timed out) after v4l's `next` had queued the previous buffer back, so
+    /// the v4l stream's current buffer is already with the driver: the next `next` would queue
+    /// it a second time, which the driver refuses (EINVAL). See [`lost_current_buffer`].
+    resync: bool,
 }
 
 struct Lens {
@@ -122,6 +126,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         frame_timeout_ms: cfg.frame_timeout_ms,
         settled_at: None,
         last_stamp: None,
+        resync: false,
     })
 }
 
@@ -224,18 +229,31 @@ impl Camera for V4l2Camera {
             .stream
             .as_mut()
             .ok_or_else(|| CaptureError::device(&label, "capture after release"))?;
+        let dequeue_error = |e: &io::Error| {
+            if e.kind() == io::ErrorKind::TimedOut {
+                CaptureError::Timeout {
+                    what: format!("{label}: waiting for a frame"),
+                    ms: self.frame_timeout_ms,
+                }
+            } else {
+                device_error(&self.node, "cannot dequeue a frame", e)
+            }
+        };
+        if self.resync {
+            // Take a filled buffer back first (its frame is dropped): `next` then queues that
+            // one, and the stream's bookkeeping matches the driver's again.
+            CaptureStream::dequeue(stream).map_err(|e| dequeue_error(&e))?;
+            self.resync = false;
+        }
         let mut dropped = 0u32;
         loop {
-            let (buf, meta) = stream.next().map_err(|e| {
-                if e.kind() == io::ErrorKind::TimedOut {
-                    CaptureError::Timeout {
-                        what: format!("{label}: waiting for a frame"),
-                        ms: self.frame_timeout_ms,
-                    }
-                } else {
-                    device_error(&self.node, "cannot dequeue a frame", &e)
+            let (buf, meta) = match stream.next() {
+                Ok(next) => next,
+                Err(e) => {
+                    self.resync = lost_current_buffer(&e);
+                    return Err(dequeue_error(&e));
                 }
-            })?;
+            };
             let stamp = exposure::timeval_ns(meta.timestamp.sec, meta.timestamp.usec);
             let measured = self.last_stamp.map(|t| stamp - t).filter(|&d| d > 0);
             self.last_stamp = Some(stamp);
@@ -527,6 +545,16 @@ fn controls_of(dev: &Device) -> io::Result<Vec<ControlInfo>> {
         .collect())
 }
 
+/// Whether a failed `next` of a started v4l stream left its current buffer queued with the
+/// driver: it queues the previous buffer back and then waits, so a wait that timed out or was
+/// interrupted fails after the queueing. Other errors (EIO, ENODEV) end the stream anyway.
+fn lost_current_buffer(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
+    )
+}
+
 fn stale(exposure_start: Nanos, settled_at: Option<Nanos>) -> bool {
     settled_at.is_some_and(|t| exposure_start < t)
 }
@@ -601,6 +629,18 @@ mod tests {
         assert!(matches(None, "anything"));
         assert!(matches(Some("VIVID"), "vivid-000-vid-cap vivid"));
         assert!(!matches(Some("uvc"), "vivid-000-vid-cap vivid"));
+    }
+
+    #[test]
+    fn a_timed_out_wait_needs_a_resync() {
+        // What v4l's dequeue returns when poll() times out, and EINTR from poll or DQBUF.
+        let timeout = io::Error::new(io::ErrorKind::TimedOut, "VIDIOC_DQBUF");
+        assert!(lost_current_buffer(&timeout));
+        assert!(lost_current_buffer(&io::Error::from_raw_os_error(4)));
+        // EIO (a streaming error) and ENODEV (unplugged) end the stream; EINVAL is not a wait.
+        for errno in [5, ENODEV, 22] {
+            assert!(!lost_current_buffer(&io::Error::from_raw_os_error(errno)));
+        }
     }
 
     #[test]

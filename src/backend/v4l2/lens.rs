@@ -177,12 +177,17 @@ impl ControlSpec {
     }
 }
 
+/// Whether a sweep could drive `c`: an integer with a range, writable.
+fn drivable(c: &ControlInfo) -> bool {
+    c.kind == ControlKind::Integer && c.writable && c.min < c.max
+}
+
 /// The control `spec` asks for, if `controls` has it in a form a sweep can drive: an integer
 /// with a range, writable. Names match case-insensitively.
 pub fn pick<'a>(controls: &'a [ControlInfo], spec: &ControlSpec) -> Option<&'a ControlInfo> {
     controls
         .iter()
-        .filter(|c| c.kind == ControlKind::Integer && c.writable && c.min < c.max)
+        .filter(|c| drivable(c))
         .find(|c| match spec {
             ControlSpec::Focus => c.id == CID_FOCUS_ABSOLUTE,
             ControlSpec::Id(id) => c.id == *id,
@@ -195,7 +200,9 @@ pub type ControlList = Result<Vec<ControlInfo>, String>;
 
 /// Why none of the devices searched for the lens control (label and controls, the video node
 /// first) has it, for an error: the autofocus controls a device has instead (the original
-/// PinePhone's ov5640 case), or what it has.
+/// PinePhone's ov5640 case), or the controls `focus_control` could name instead. Only those
+/// are listed: a driver's list also holds control-class headers, buttons, menus, arrays and
+/// read-only controls (vivid has some seventy), which would bury the message.
 pub fn missing_detail(searched: &[(String, ControlList)]) -> String {
     let parts: Vec<String> = searched
         .iter()
@@ -218,9 +225,17 @@ pub fn missing_detail(searched: &[(String, ControlList)]) -> String {
             } else {
                 let names: Vec<String> = controls
                     .iter()
+                    .filter(|c| drivable(c))
                     .map(|c| format!("{} (0x{:08x})", c.name, c.id))
                     .collect();
-                format!("{who} has {}", names.join(", "))
+                if names.is_empty() {
+                    format!(
+                        "{who} has no writable integer control at all ({} others)",
+                        controls.len()
+                    )
+                } else {
+                    format!("{who} has {}", names.join(", "))
+                }
             }
         })
         .collect();
@@ -405,5 +420,27 @@ mod tests {
         )]);
         assert_eq!(plain, ": it has Brightness (0x00980900)");
         assert_eq!(missing_detail(&[]), "");
+    }
+
+    #[test]
+    fn only_controls_a_sweep_could_drive_are_listed() {
+        // As vivid lists them: a class header, a button, a read-only integer, a fixed one.
+        let mut class = ctrl(0x0098_0001, "User Controls", 0, 0);
+        class.kind = ControlKind::Other;
+        let mut button = ctrl(0x0098_f900, "Button", 0, 0);
+        button.kind = ControlKind::Other;
+        let mut read_only = ctrl(0x0098_f90c, "Read-Only Integer 32 Bits", 0, 255);
+        read_only.writable = false;
+        let fixed = ctrl(0x0098_f90f, "Fixed", 3, 3);
+        let brightness = ctrl(0x0098_0900, "Brightness", 0, 255);
+        let all = vec![class, button, read_only, brightness, fixed];
+        assert_eq!(
+            missing_detail(&[("/dev/video0".into(), Ok(all.clone()))]),
+            ": it has Brightness (0x00980900)"
+        );
+        assert_eq!(
+            missing_detail(&[("/dev/video0".into(), Ok(all[..3].to_vec()))]),
+            ": it has no writable integer control at all (3 others)"
+        );
     }
 }

@@ -1,0 +1,849 @@
+//! The V4L2 backend against the kernel's vivid test driver: run inside a VM by
+//! `tests/kernel/run-vivid` (or on any machine with `modprobe vivid`, as root).
+//!
+//! `vivid [/dev/videoN]` (default `/dev/video0`, vivid-000-vid-cap). Prints the device's formats
+//! and controls, then one `ok: ...` line per passed check; stops at the first failed check with
+//! `FAIL: ...`. Ends with `VIVID-RESULT: PASS` or `VIVID-RESULT: FAIL` (exit status 0 or 1).
+//!
+//! vivid has no focus control, so the sweep drives `Brightness` instead (`focus_control`), which
+//! also makes every move visible in the frames.
+
+use focusd::backend::sys::{monotonic_now, MonotonicClock};
+use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
+use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
+use focusd::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Sensor, Take};
+use focusd::stack::image::Image;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use v4l::buffer::Type as BufType;
+use v4l::control::{Control, Description, Type as CtrlType, Value};
+use v4l::io::mmap::Stream as MmapStream;
+use v4l::io::traits::CaptureStream;
+use v4l::video::capture::Parameters;
+use v4l::video::Capture;
+use v4l::{Device, Fraction};
+
+type Check = Result<(), String>;
+
+macro_rules! ensure {
+    ($cond:expr, $($fmt:tt)+) => {
+        let holds: bool = $cond;
+        if !holds {
+            return Err(format!($($fmt)+));
+        }
+    };
+}
+
+fn ok(what: impl AsRef<str>) {
+    println!("ok: {}", what.as_ref());
+}
+
+const MS: Nanos = 1_000_000;
+const BAYER: [&str; 4] = ["RGGB", "BA81", "GBRG", "GRBG"];
+
+fn main() {
+    let node = PathBuf::from(
+        std::env::args()
+            .nth(1)
+            .unwrap_or_else(|| "/dev/video0".into()),
+    );
+    let result = std::panic::catch_unwind(|| run(&node)).unwrap_or_else(|p| {
+        let msg = p
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default();
+        Err(format!("panicked: {msg}"))
+    });
+    match result {
+        Ok(()) => println!("VIVID-RESULT: PASS"),
+        Err(e) => {
+            println!("FAIL: {e}");
+            println!("VIVID-RESULT: FAIL");
+            std::process::exit(1);
+        }
+    }
+}
+
+/// What the raw device says, through the v4l crate (not the backend).
+struct Info {
+    formats: Vec<String>,
+    controls: Vec<Description>,
+}
+
+impl Info {
+    fn control(&self, name: &str) -> Option<&Description> {
+        self.controls
+            .iter()
+            .find(|c| c.name.eq_ignore_ascii_case(name))
+    }
+}
+
+fn run(node: &Path) -> Check {
+    let info = inspect(node)?;
+    let brightness = info
+        .control("Brightness")
+        .ok_or("vivid has no Brightness control")?;
+    ensure!(
+        brightness.typ == CtrlType::Integer && brightness.minimum < brightness.maximum,
+        "Brightness is not an integer control with a range: {brightness:?}"
+    );
+    let range = (brightness.minimum as i32, brightness.maximum as i32);
+    let raw = Device::with_path(node).map_err(|e| format!("{}: {e}", node.display()))?;
+    set(&raw, brightness.id, brightness.default)?;
+
+    no_focus_control(node)?;
+    open_by_card()?;
+    lens_is_the_control(node, range)?;
+    formats(node, &info)?;
+    streaming(node)?;
+    timestamps(node, &info, &raw)?;
+    lens_restored(node, &raw, brightness.id, range)?;
+    stale_frames_dropped(node, range)?;
+    whole_sweep(node, range)?;
+    busy(node)?;
+    timeout(node, &info, &raw)?;
+    error_frames(node, &info, &raw)?;
+    set(&raw, brightness.id, brightness.default)?;
+    // Last: vivid unregisters its nodes.
+    disconnect(node, &info, &raw)?;
+    Ok(())
+}
+
+fn inspect(node: &Path) -> Result<Info, String> {
+    let dev = Device::with_path(node).map_err(|e| format!("{}: {e}", node.display()))?;
+    let caps = dev.query_caps().map_err(|e| format!("query_caps: {e}"))?;
+    println!(
+        "device: {} card {:?} driver {:?} caps {}",
+        node.display(),
+        caps.card,
+        caps.driver,
+        caps.capabilities
+    );
+    let formats: Vec<String> = dev
+        .enum_formats()
+        .map_err(|e| format!("enum_formats: {e}"))?
+        .iter()
+        .map(|f| {
+            println!("format: {} ({})", f.fourcc, f.description);
+            f.fourcc.str().unwrap_or("?").trim_end().to_string()
+        })
+        .collect();
+    let controls = dev
+        .query_controls()
+        .map_err(|e| format!("query_controls: {e}"))?;
+    for c in &controls {
+        println!(
+            "control: 0x{:08x} {:?} {:?} {}..={} step {} default {} flags {}",
+            c.id, c.name, c.typ, c.minimum, c.maximum, c.step, c.default, c.flags
+        );
+    }
+    if let Ok(p) = dev.params() {
+        println!(
+            "interval: {}/{} s",
+            p.interval.numerator, p.interval.denominator
+        );
+    }
+    Ok(Info { formats, controls })
+}
+
+fn cfg(node: &Path, format: Option<&str>, (width, height): (u32, u32)) -> V4l2Config {
+    V4l2Config {
+        device: Some(node.to_path_buf()),
+        focus_control: Some("Brightness".into()),
+        format: format.map(str::to_string),
+        width,
+        height,
+        ..V4l2Config::default()
+    }
+}
+
+fn open(cfg: &V4l2Config) -> Result<V4l2Camera, String> {
+    let cam = v4l2::open(cfg).map_err(|e| format!("open: {e}"))?;
+    println!("opened: {}", cam.describe());
+    Ok(cam)
+}
+
+fn capture(cam: &mut V4l2Camera) -> Result<Take, String> {
+    cam.capture().map_err(|e| format!("capture: {e}"))
+}
+
+fn set(dev: &Device, id: u32, v: i64) -> Check {
+    dev.set_control(Control {
+        id,
+        value: Value::Integer(v),
+    })
+    .map_err(|e| format!("setting control 0x{id:08x} to {v}: {e}"))
+}
+
+fn get(dev: &Device, id: u32) -> Result<i64, String> {
+    match dev
+        .control(id)
+        .map_err(|e| format!("reading 0x{id:08x}: {e}"))?
+        .value
+    {
+        Value::Integer(v) => Ok(v),
+        Value::Boolean(b) => Ok(b.into()),
+        v => Err(format!("control 0x{id:08x} has value {v:?}")),
+    }
+}
+
+fn mean_luma(img: &Image<u8>) -> f64 {
+    let sum: f64 = img
+        .data
+        .chunks_exact(3)
+        .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
+        .sum();
+    sum / img.pixels() as f64
+}
+
+/// The 75% colour bars of vivid's default pattern, as high/low per channel.
+const BARS: [(&str, [bool; 3]); 8] = [
+    ("white", [true, true, true]),
+    ("yellow", [true, true, false]),
+    ("cyan", [false, true, true]),
+    ("green", [false, true, false]),
+    ("magenta", [true, false, true]),
+    ("red", [true, false, false]),
+    ("blue", [false, false, true]),
+    ("black", [false, false, false]),
+];
+
+/// Checks the eight bars along a row near the bottom (vivid writes its OSD text over the top
+/// rows, down past the middle of a 320x180 frame): each bar's centre (averaged over a few
+/// pixels) has the bar's channels high (> 140) and the others low (< 70).
+fn colour_bars(img: &Image<u8>) -> Result<Vec<[u8; 3]>, String> {
+    let y = img.height * 7 / 8;
+    let bar = img.width / 8;
+    let mut seen = Vec::new();
+    for (i, (name, want)) in BARS.iter().enumerate() {
+        let cx = i * bar + bar / 2;
+        let span = (bar / 4).max(1);
+        let mut sum = [0u32; 3];
+        for x in cx - span / 2..cx - span / 2 + span {
+            for (c, s) in sum.iter_mut().enumerate() {
+                *s += u32::from(img.at(x, y, c));
+            }
+        }
+        let px = sum.map(|s| (s / span as u32) as u8);
+        seen.push(px);
+        let good = (0..3).all(|c| if want[c] { px[c] > 140 } else { px[c] < 70 });
+        ensure!(
+            good,
+            "bar {i} ({name}) at x = {cx}, y = {y} is {px:?}; the bars along the row are {:?}",
+            row_summary(img, y)
+        );
+    }
+    let mut distinct = seen.clone();
+    distinct.sort();
+    distinct.dedup();
+    ensure!(
+        distinct.len() == 8,
+        "only {} distinct bar colours",
+        distinct.len()
+    );
+    Ok(seen)
+}
+
+fn row_summary(img: &Image<u8>, y: usize) -> Vec<[u8; 3]> {
+    (0..16)
+        .map(|i| {
+            let x = i * img.width / 16 + img.width / 32;
+            [img.at(x, y, 0), img.at(x, y, 1), img.at(x, y, 2)]
+        })
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+
+fn no_focus_control(node: &Path) -> Check {
+    let cfg = V4l2Config {
+        device: Some(node.to_path_buf()),
+        ..V4l2Config::default()
+    };
+    match v4l2::open(&cfg) {
+        Err(e @ CaptureError::NoFocusControl { .. }) => {
+            let msg = e.to_string();
+            ensure!(
+                msg.contains("a manual focus sweep is not possible")
+                    && msg.contains(&node.display().to_string())
+                    && msg.contains("Brightness (0x00980900)")
+                    && !msg.contains("User Controls")
+                    && !msg.contains("Button"),
+                "the NoFocusControl message does not say what it should: {msg}"
+            );
+            ok(format!("default config: NoFocusControl: {msg}"));
+            Ok(())
+        }
+        Err(e) => Err(format!("default config: expected NoFocusControl, got: {e}")),
+        Ok(cam) => Err(format!(
+            "default config: opened {} although vivid has no focus control",
+            cam.describe()
+        )),
+    }
+}
+
+fn open_by_card() -> Check {
+    let cfg = V4l2Config {
+        card: Some("vivid".into()),
+        focus_control: Some("Brightness".into()),
+        width: 640,
+        height: 480,
+        ..V4l2Config::default()
+    };
+    let cam = open(&cfg)?;
+    let d = cam.describe();
+    ensure!(
+        d.starts_with("/dev/video0 "),
+        "card = \"vivid\" found {d}, not the capture node /dev/video0"
+    );
+    ok(format!("card = \"vivid\" finds the capture node: {d}"));
+    Ok(())
+}
+
+fn lens_is_the_control(node: &Path, range: (i32, i32)) -> Check {
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    ensure!(
+        cam.lens_range() == range,
+        "lens_range {:?}, Brightness is {range:?}",
+        cam.lens_range()
+    );
+    ok(format!(
+        "focus_control = \"Brightness\": open succeeds, lens_range {range:?} is the control's"
+    ));
+    let mut luma = Vec::new();
+    for p in [range.0, range.1] {
+        cam.focus(0, p).map_err(|e| format!("focus {p}: {e}"))?;
+        luma.push(mean_luma(&capture(&mut cam)?.image));
+    }
+    ensure!(
+        luma[1] - luma[0] > 60.0,
+        "Brightness {} and {} give mean luma {:.1} and {:.1}: the control does not reach the image",
+        range.0,
+        range.1,
+        luma[0],
+        luma[1]
+    );
+    ok(format!(
+        "the lens control changes the image: mean luma {:.1} at {} and {:.1} at {}",
+        luma[0], range.0, luma[1], range.1
+    ));
+    let err = cam.focus(0, range.1 + 1).err().map(|e| e.to_string());
+    ensure!(
+        err.as_deref()
+            .is_some_and(|e| e.contains("outside its range")),
+        "focus beyond the range: {err:?}"
+    );
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok("focus outside the range is refused");
+    Ok(())
+}
+
+fn formats(node: &Path, info: &Info) -> Check {
+    let mut wanted: Vec<&str> = vec!["YUYV", "UYVY", "RGB3", "NV12"];
+    wanted.extend(
+        BAYER
+            .iter()
+            .filter(|b| info.formats.iter().any(|f| f == *b)),
+    );
+    ensure!(
+        wanted.len() > 4,
+        "vivid offers none of the Bayer formats {BAYER:?}: {:?}",
+        info.formats
+    );
+    let raw = Device::with_path(node).map_err(|e| e.to_string())?;
+    for size in [(640, 480), (320, 240)] {
+        for f in &wanted {
+            ensure!(
+                info.formats.iter().any(|o| o == f),
+                "vivid does not offer {f}: {:?}",
+                info.formats
+            );
+            let mut cam = open(&cfg(node, Some(f), size))?;
+            let take = capture(&mut cam)?;
+            let g = raw.format().map_err(|e| format!("G_FMT: {e}"))?;
+            let img = &take.image;
+            ensure!(
+                g.fourcc.str().ok() == Some(f),
+                "{f}: the driver's format is {} after open",
+                g.fourcc
+            );
+            ensure!(
+                (img.width, img.height, img.channels) == (g.width as usize, g.height as usize, 3),
+                "{f} {size:?}: frame {}x{}x{}, the driver negotiated {}x{}",
+                img.width,
+                img.height,
+                img.channels,
+                g.width,
+                g.height
+            );
+            ensure!(
+                size != (640, 480) || (g.width, g.height) == size,
+                "{f}: asked for 640x480, got {}x{}",
+                g.width,
+                g.height
+            );
+            ensure!(
+                cam.describe()
+                    .contains(&format!(" {f} {}x{},", g.width, g.height)),
+                "{f}: describe() says {}",
+                cam.describe()
+            );
+            let bars =
+                colour_bars(img).map_err(|e| format!("{f} {}x{}: {e}", g.width, g.height))?;
+            let luma = mean_luma(img);
+            ensure!(
+                (40.0..220.0).contains(&luma),
+                "{f}: implausible mean luma {luma:.1}"
+            );
+            cam.release().map_err(|e| format!("release: {e}"))?;
+            ok(format!(
+                "{f} asked {}x{}: negotiated {}x{} stride {} (sizeimage {}), RGB frame of that \
+                 size, 8 colour bars right (white {:?}, red {:?}, blue {:?}), mean luma {luma:.1}",
+                size.0, size.1, g.width, g.height, g.stride, g.size, bars[0], bars[5], bars[6]
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn streaming(node: &Path) -> Check {
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    let mut prev: Option<(Nanos, Nanos)> = None;
+    let mut lengths = Vec::new();
+    for i in 0..6 {
+        let t = capture(&mut cam)?;
+        let now = monotonic_now();
+        let (s, e) = (t.exposure_start, t.exposure_end);
+        ensure!(s < e, "frame {i}: window [{s}, {e}] is empty");
+        // vivid stamps an end-of-frame 0.9 frame periods after it fills the buffer, i.e. in
+        // the future of the dequeue; a real sensor's end of frame is in the past.
+        ensure!(
+            e <= now + (e - s) && now - e < 1_000 * MS,
+            "frame {i}: window ends at {e}, now is {now} ({} ms apart): not CLOCK_MONOTONIC?",
+            (now - e) / MS
+        );
+        if let Some((ps, pe)) = prev {
+            ensure!(
+                s > ps,
+                "frame {i} starts at {s}, before frame {} ({ps})",
+                i - 1
+            );
+            ensure!(
+                s >= pe - (e - s) / 5,
+                "frame {i} [{s}, {e}] overlaps frame {} [{ps}, {pe}] by more than a fifth",
+                i - 1
+            );
+        }
+        lengths.push((e - s) / 1000);
+        prev = Some((s, e));
+    }
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok(format!(
+        "mmap streaming: 6 frames in a row, increasing and disjoint windows on CLOCK_MONOTONIC \
+         (lengths {lengths:?} us)"
+    ));
+    Ok(())
+}
+
+/// Raw buffers through the v4l crate: (flags, timestamp, monotonic time at dequeue).
+fn raw_frames(node: &Path, n: usize) -> Result<Vec<(u32, Nanos, Nanos)>, String> {
+    let dev = Device::with_path(node).map_err(|e| e.to_string())?;
+    let mut s = MmapStream::with_buffers(&dev, BufType::VideoCapture, 4)
+        .map_err(|e| format!("raw stream: {e}"))?;
+    s.set_timeout(Duration::from_secs(5));
+    let mut out = Vec::new();
+    for _ in 0..n {
+        let (_, m) = CaptureStream::next(&mut s).map_err(|e| format!("raw dequeue: {e}"))?;
+        let now = monotonic_now();
+        let stamp = m.timestamp.sec * 1_000_000_000 + m.timestamp.usec * 1000;
+        out.push((m.flags.bits(), stamp, now));
+    }
+    Ok(out)
+}
+
+fn timestamps(node: &Path, info: &Info, raw: &Device) -> Check {
+    let src = info
+        .control("Timestamp Source")
+        .ok_or("vivid has no \"Timestamp Source\" control")?;
+    let original = raw.params().map_err(|e| format!("G_PARM: {e}"))?.interval;
+    // Half a second per frame: the windows' placement against the dequeue time then tells the
+    // two timestamp sources apart despite the VM's latencies.
+    let period = 500 * MS;
+    let c = cfg(node, Some("YUYV"), (640, 480));
+    raw.set_format(&v4l::Format::new(640, 480, v4l::FourCC::new(b"YUYV")))
+        .map_err(|e| format!("S_FMT: {e}"))?;
+    let p = raw
+        .set_params(&Parameters::new(Fraction::new(1, 2)))
+        .map_err(|e| format!("S_PARM: {e}"))?;
+    ensure!(
+        (p.interval.numerator, p.interval.denominator) == (1, 2),
+        "vivid did not take 1/2 s per frame: {}/{}",
+        p.interval.numerator,
+        p.interval.denominator
+    );
+    let result = (|| {
+        for (value, name, flag) in [(0, "end of frame", 0), (1, "start of exposure", 0x1_0000)] {
+            set(raw, src.id, value)?;
+            let frames = raw_frames(node, 2)?;
+            for &(flags, stamp, now) in &frames {
+                ensure!(
+                    flags & 0xe000 == 0x2000 && flags & 0x7_0000 == flag,
+                    "{name}: buffer flags 0x{flags:08x}, expected TIMESTAMP_MONOTONIC and \
+                     source 0x{flag:05x}"
+                );
+                ensure!(
+                    (now - stamp).abs() < period,
+                    "{name}: buffer stamped {stamp}, dequeued at {now}"
+                );
+            }
+            let (_, stamp, now) = frames[1];
+            ok(format!(
+                "raw buffers ({name}): flags MONOTONIC | source 0x{flag:05x}, stamp {} ms from \
+                 the dequeue",
+                (stamp - now) / MS
+            ));
+            let mut cam = open(&c)?;
+            for i in 0..3 {
+                let t = capture(&mut cam)?;
+                let now = monotonic_now();
+                let (s, e) = (t.exposure_start, t.exposure_end);
+                ensure!(
+                    e - s == period,
+                    "{name}: window of {} ns, the frame interval (G_PARM) is {period} ns",
+                    e - s
+                );
+                // vivid fills a buffer at f and stamps it f (SOE) or f + 0.9 period (EOF), then
+                // hands it over at once: the exposure begins at f (SOE) or f - 0.1 period (EOF),
+                // shortly before the dequeue. Reading one source as the other puts the start
+                // 0.9 period later (after the dequeue) or one period earlier.
+                ensure!(
+                    s <= now && now - s < period / 2,
+                    "{name}, frame {i}: window [{s}, {e}] starts {} ms before the dequeue at \
+                     {now}: the timestamp source is misread",
+                    (now - s) / MS
+                );
+                if i == 2 {
+                    ok(format!(
+                        "backend windows ({name}): start {} ms and end {} ms from the dequeue, \
+                         length = the frame interval",
+                        (s - now) / MS,
+                        (e - now) / MS
+                    ));
+                }
+            }
+            cam.release().map_err(|e| format!("release: {e}"))?;
+        }
+        Ok(())
+    })();
+    set(raw, src.id, 0)?;
+    raw.set_params(&Parameters::new(original))
+        .map_err(|e| format!("S_PARM: {e}"))?;
+    result
+}
+
+fn lens_restored(node: &Path, raw: &Device, id: u32, range: (i32, i32)) -> Check {
+    let before = i64::from(range.0 + (range.1 - range.0) / 3);
+    set(raw, id, before)?;
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    cam.focus(0, range.1).map_err(|e| format!("focus: {e}"))?;
+    capture(&mut cam)?;
+    let moved = get(raw, id)?;
+    ensure!(
+        moved == i64::from(range.1),
+        "after focus({}) the control reads {moved}",
+        range.1
+    );
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    let after = get(raw, id)?;
+    ensure!(
+        after == before,
+        "after release() the control is {after}, it was {before}"
+    );
+    cam.release()
+        .map_err(|e| format!("a second release() failed: {e}"))?;
+    ensure!(
+        cam.capture().is_err() && cam.focus(0, range.0).is_err(),
+        "capture or focus after release succeeded"
+    );
+    drop(cam);
+    ok(format!(
+        "the control is moved by focus() and back to {before} after release(); release() twice is fine"
+    ));
+
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    cam.focus(0, range.0).map_err(|e| format!("focus: {e}"))?;
+    capture(&mut cam)?;
+    ensure!(get(raw, id)? == i64::from(range.0), "focus did not move it");
+    drop(cam);
+    let after = get(raw, id)?;
+    ensure!(
+        after == before,
+        "after drop the control is {after}, it was {before}"
+    );
+    ok(format!(
+        "dropping the camera mid-stream restores the control to {before}"
+    ));
+    // Restarting: a new stream right after the old one was dropped.
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    capture(&mut cam)?;
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok("the stream restarts after a dropped camera");
+    Ok(())
+}
+
+fn stale_frames_dropped(node: &Path, range: (i32, i32)) -> Check {
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    capture(&mut cam)?;
+    let mut lumas = Vec::new();
+    for (i, p) in [range.0, range.1, range.0, range.1, range.0, range.1]
+        .into_iter()
+        .enumerate()
+    {
+        // Let the queue fill with frames of the old setting.
+        std::thread::sleep(Duration::from_millis(200));
+        cam.focus(i, p).map_err(|e| format!("focus: {e}"))?;
+        let returned = monotonic_now();
+        let t = capture(&mut cam)?;
+        ensure!(
+            t.exposure_start >= returned,
+            "move {i} to {p}: the next frame began exposing at {}, {} us before focus() \
+             returned at {returned}",
+            t.exposure_start,
+            (returned - t.exposure_start) / 1000
+        );
+        lumas.push(mean_luma(&t.image));
+    }
+    let dark = lumas.iter().step_by(2).fold(f64::MIN, |a, &b| a.max(b));
+    let bright = lumas
+        .iter()
+        .skip(1)
+        .step_by(2)
+        .fold(f64::MAX, |a, &b| a.min(b));
+    ensure!(
+        bright - dark > 60.0,
+        "the first frame after each move shows the old setting: mean luma {lumas:.1?}"
+    );
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok(format!(
+        "after each of 6 moves the next frame began exposing after focus() returned and shows \
+         the new setting (mean luma {lumas:.0?})"
+    ));
+    Ok(())
+}
+
+/// An IMU at rest: gyro zeros, gravity along y, a sample of each every 5 ms over any window.
+struct StillImu;
+
+impl Imu for StillImu {
+    fn samples(&mut self, from: Nanos, to: Nanos) -> Result<Vec<ImuSample>, CaptureError> {
+        let mut out = Vec::new();
+        let mut t = from;
+        loop {
+            out.push(ImuSample {
+                t,
+                sensor: Sensor::Gyro,
+                v: [0.0; 3],
+            });
+            out.push(ImuSample {
+                t,
+                sensor: Sensor::Accel,
+                v: [0.0, 9.81, 0.0],
+            });
+            if t >= to {
+                return Ok(out);
+            }
+            t = (t + 5 * MS).min(to);
+        }
+    }
+}
+
+fn whole_sweep(node: &Path, range: (i32, i32)) -> Check {
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    let sc = SweepConfig {
+        planes: 4,
+        still_ms: 40,
+        still_timeout_ms: 2000,
+        ..SweepConfig::default()
+    };
+    let s = sweep(&mut cam, &mut StillImu, &MonotonicClock, &sc, &Unmonitored)
+        .map_err(|e| format!("sweep: {e}"))?;
+    ensure!(s.frames.len() == 4, "{} frames, 4 planes", s.frames.len());
+    let (lo, hi) = range;
+    let want: Vec<i32> = (0..4)
+        .map(|i| (f64::from(hi) - f64::from(hi - lo) * f64::from(i) / 3.0).round() as i32)
+        .collect();
+    let got: Vec<i32> = s.planes.iter().map(|p| p.lens).collect();
+    ensure!(got == want, "lens positions {got:?}, expected {want:?}");
+    for p in &s.planes {
+        ensure!(
+            p.takes.len() == 1 && p.takes[0].accepted,
+            "plane {}: takes {:?}",
+            p.plane,
+            p.takes
+        );
+    }
+    // As in `streaming`: vivid's end-of-frame stamps lie 0.9 nominal periods after the frame's
+    // (jittery) start, so neighbours may overlap by a little.
+    for w in s.frames.windows(2) {
+        let len = w[0].exposure_end - w[0].exposure_start;
+        ensure!(
+            w[1].exposure_start > w[0].exposure_start
+                && w[1].exposure_start >= w[0].exposure_end - len / 5,
+            "sweep frames overlap: [{}, {}] then [{}, {}]",
+            w[0].exposure_start,
+            w[0].exposure_end,
+            w[1].exposure_start,
+            w[1].exposure_end
+        );
+    }
+    let lumas: Vec<f64> = s.frames.iter().map(|f| mean_luma(&f.image)).collect();
+    ensure!(
+        lumas.windows(2).all(|w| w[0] > w[1] + 5.0),
+        "mean luma over the planes {lumas:.1?} does not fall with the brightness {got:?}"
+    );
+    ensure!(
+        cam.capture().is_err(),
+        "the sweep did not release the camera"
+    );
+    ok(format!(
+        "sweep: 4 planes at {got:?} (nearest first), every take accepted, mean luma {lumas:.0?} \
+         falling with the lens position, camera released"
+    ));
+    Ok(())
+}
+
+fn busy(node: &Path) -> Check {
+    let mut first = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    capture(&mut first)?;
+    let msg = match v4l2::open(&cfg(node, Some("YUYV"), (640, 480))) {
+        Ok(_) => return Err("a second camera opened while the first streams".into()),
+        Err(e) => e.to_string(),
+    };
+    ensure!(
+        msg.contains("another program"),
+        "a second open while streaming: {msg}"
+    );
+    capture(&mut first)?;
+    first.release().map_err(|e| format!("release: {e}"))?;
+    ok(format!("a second open while streaming is refused: {msg}"));
+    Ok(())
+}
+
+fn timeout(node: &Path, info: &Info, raw: &Device) -> Check {
+    let drop_pct = info
+        .control("Percentage of Dropped Buffers")
+        .ok_or("vivid has no \"Percentage of Dropped Buffers\" control")?
+        .id;
+    let c = V4l2Config {
+        frame_timeout_ms: 700,
+        ..cfg(node, Some("YUYV"), (640, 480))
+    };
+    let mut cam = open(&c)?;
+    capture(&mut cam)?;
+    set(raw, drop_pct, 100)?;
+    let r = cam.capture();
+    set(raw, drop_pct, 0)?;
+    match r {
+        Err(e @ CaptureError::Timeout { ms: 700, .. }) => {
+            ok(format!("a stalled stream times out: {e}"))
+        }
+        Err(e) => return Err(format!("a stalled stream: expected a timeout, got: {e}")),
+        Ok(_) => return Err("a stalled stream delivered a frame".into()),
+    }
+    let t = cam
+        .capture()
+        .map_err(|e| format!("capture after a timeout, the stream running again: {e}"))?;
+    ensure!(
+        t.exposure_start < t.exposure_end,
+        "bad window after a timeout"
+    );
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok("capture works again once the stream resumes after a timeout");
+    Ok(())
+}
+
+fn error_frames(node: &Path, info: &Info, raw: &Device) -> Check {
+    let inject = info
+        .control("Inject V4L2_BUF_FLAG_ERROR")
+        .ok_or("vivid has no \"Inject V4L2_BUF_FLAG_ERROR\" control")?
+        .id;
+    let press = || {
+        raw.set_control(Control {
+            id: inject,
+            value: Value::None,
+        })
+        .map_err(|e| format!("pressing Inject V4L2_BUF_FLAG_ERROR: {e}"))
+    };
+    // The driver's side: the next buffer comes back flagged.
+    {
+        let dev = Device::with_path(node).map_err(|e| e.to_string())?;
+        let mut s = MmapStream::with_buffers(&dev, BufType::VideoCapture, 4)
+            .map_err(|e| format!("raw stream: {e}"))?;
+        s.set_timeout(Duration::from_secs(5));
+        CaptureStream::next(&mut s).map_err(|e| format!("raw dequeue: {e}"))?;
+        press()?;
+        let (_, m) = CaptureStream::next(&mut s).map_err(|e| format!("raw dequeue: {e}"))?;
+        ensure!(
+            m.flags.bits() & 0x40 != 0,
+            "vivid did not flag the buffer after the injection: 0x{:08x}",
+            m.flags.bits()
+        );
+    }
+    // The backend skips it: the frame after the flagged one comes back, a period later.
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    capture(&mut cam)?;
+    let b = capture(&mut cam)?;
+    // The window is one frame interval long (vivid has no exposure control).
+    let period = b.exposure_end - b.exposure_start;
+    press()?;
+    let c = capture(&mut cam)?;
+    let gap = c.exposure_start - b.exposure_start;
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ensure!(
+        gap > period * 3 / 2,
+        "after an injected buffer error the next frame began {} ms after the previous one, \
+         one period ({} ms): the corrupt frame was returned",
+        gap / MS,
+        period / MS
+    );
+    ok(format!(
+        "a buffer flagged V4L2_BUF_FLAG_ERROR is skipped (next frame {} ms later, frame interval {} ms)",
+        gap / MS,
+        period / MS
+    ));
+    Ok(())
+}
+
+fn disconnect(node: &Path, info: &Info, raw: &Device) -> Check {
+    let button = info
+        .control("Disconnect")
+        .ok_or("vivid has no \"Disconnect\" control")?
+        .id;
+    let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
+    cam.focus(0, 10).map_err(|e| format!("focus: {e}"))?;
+    capture(&mut cam)?;
+    raw.set_control(Control {
+        id: button,
+        value: Value::None,
+    })
+    .map_err(|e| format!("pressing Disconnect: {e}"))?;
+    let e = match cam.capture() {
+        Ok(_) => return Err("a frame came after the device was disconnected".into()),
+        Err(e) => e.to_string(),
+    };
+    ensure!(
+        e.contains("went away"),
+        "capture after a disconnect: {e} (expected it to say the device went away)"
+    );
+    let r = cam
+        .release()
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    drop(cam);
+    ok(format!(
+        "a disconnect mid-stream: capture fails with {e:?}; release: {r:?}; no panic"
+    ));
+    Ok(())
+}
