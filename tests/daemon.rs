@@ -207,7 +207,14 @@ fn a_bad_bundle_fails_clearly_and_the_daemon_keeps_serving_and_keeps_a_good_conf
 }
 
 #[test]
-fn sigterm_mid_job_cancels_it_and_exits_zero() {
+fn sigterm_mid_sweep_or_mid_fuse_cancels_the_job_and_exits_zero() {
+    for stage in ["sweeping", "register"] {
+        sigterm_at(stage);
+    }
+}
+
+/// Sends SIGTERM when the job reaches `stage`.
+fn sigterm_at(stage: &str) {
     let bus = Bus::start();
     let mut d = Daemon::start(&bus, &bundle_dir("shaken"), true);
     runtime().block_on(async {
@@ -219,15 +226,13 @@ fn sigterm_mid_job_cancels_it_and_exits_zero() {
         let mut progress = proxy.receive_progress().await.unwrap();
         let job = proxy.capture().await.unwrap();
         while let Some(s) = progress.next().await {
-            if s.args().unwrap().stage == "sweeping" {
+            if s.args().unwrap().stage == stage {
                 break;
             }
         }
         d.signal("-TERM");
-        assert_eq!(
-            outcome(&job, finished, failed).await.unwrap_err(),
-            "cancelled"
-        );
+        let e = outcome(&job, finished, failed).await.unwrap_err();
+        assert_eq!(e, "cancelled", "at {stage}");
     });
     let t = Instant::now();
     let status = loop {
@@ -242,5 +247,6 @@ fn sigterm_mid_job_cancels_it_and_exits_zero() {
         std::thread::sleep(Duration::from_millis(20));
     };
     assert_eq!(status.code(), Some(0), "{}", d.log());
-    assert!(d.outputs().is_empty(), "{:?}", d.outputs());
+    assert!(d.outputs().is_empty(), "at {stage}: {:?}", d.outputs());
+    assert!(d.log().contains("replay camera released"), "{}", d.log());
 }
