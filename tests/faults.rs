@@ -171,3 +171,47 @@ fn a_client_that_disconnects_mid_job_does_not_stop_it() {
     });
     assert!(!d.log().contains("panicked"));
 }
+
+#[test]
+fn calls_with_wrong_arguments_are_refused_and_the_daemon_keeps_serving() {
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &bundle_dir("calm"), false);
+    let busctl = |args: &[&str]| {
+        Command::new("busctl")
+            .arg(format!("--address={}", bus.address))
+            .args([
+                "call",
+                "org.focusd.Focusd",
+                "/org/focusd/Focusd",
+                "org.focusd.Focusd1",
+            ])
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    for args in [
+        &["Cancel", "i", "5"][..],
+        &["Cancel"][..],
+        &["Capture", "s", "x"][..],
+        &["Cancel", "ss", "a", "b"][..],
+    ] {
+        let o = busctl(args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} was accepted");
+        let clear = err.contains("Signature mismatch") || err.contains("takes no arguments");
+        assert!(clear, "{args:?}: {err}");
+    }
+    let huge = "j".repeat(100_000);
+    let o = busctl(&["Cancel", "s", &huge]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.len() < 1000 && err.contains("is not running"),
+        "{}",
+        &err[..err.len().min(300)]
+    );
+    runtime().block_on(async {
+        assert!(capture(&bus).await.is_ok());
+    });
+    assert!(!d.log().contains("panicked"));
+}

@@ -18,6 +18,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use tokio::signal::unix::{signal, SignalKind};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
+use zbus::message::Header;
 use zbus::object_server::{InterfaceRef, SignalEmitter};
 use zbus::{interface, DBusError};
 
@@ -71,6 +72,8 @@ pub enum FocusdError {
     NoSuchJob(String),
     /// The output directory cannot be used.
     Output(String),
+    /// The call's arguments are not the method's.
+    InvalidArgs(String),
 }
 
 struct Running {
@@ -140,7 +143,14 @@ pub struct Focusd {
 impl Focusd {
     /// Starts a capture (sweep, register, fuse) and returns its job id at once; the result
     /// comes as `Finished` or `Failed`.
-    fn capture(&self) -> Result<String, FocusdError> {
+    fn capture(&self, #[zbus(header)] header: Header<'_>) -> Result<String, FocusdError> {
+        // zbus passes a method without arguments whatever body came with the call.
+        let got = header.signature().to_string();
+        if !got.is_empty() {
+            return Err(FocusdError::InvalidArgs(format!(
+                "Capture takes no arguments, got signature {got:?}"
+            )));
+        }
         let mut s = self.shared.lock();
         if let Some(r) = &s.running {
             return Err(FocusdError::Busy(format!(
@@ -180,6 +190,8 @@ impl Focusd {
     /// Stops a running job; it ends with `Failed(job, "cancelled")`.
     fn cancel(&self, job: &str) -> Result<(), FocusdError> {
         let s = self.shared.lock();
+        // Echoed in the error: a caller's megabyte of text is not.
+        let shown: String = job.chars().take(64).collect();
         match &s.running {
             Some(r) if r.id == job => {
                 r.cancel.store(true, Ordering::SeqCst);
@@ -187,11 +199,11 @@ impl Focusd {
                 Ok(())
             }
             Some(r) => Err(FocusdError::NoSuchJob(format!(
-                "job {job:?} is not running (job {} is)",
+                "job {shown:?} is not running (job {} is)",
                 r.id
             ))),
             None => Err(FocusdError::NoSuchJob(format!(
-                "job {job:?} is not running (no job is)"
+                "job {shown:?} is not running (no job is)"
             ))),
         }
     }
