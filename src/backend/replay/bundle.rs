@@ -126,7 +126,10 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     for (i, t) in m.takes.iter().enumerate() {
         let at = format!("take {i} (plane {}, {})", t.plane, t.image);
         if t.plane >= MAX_TAKES {
-            return Err(format!("{at}: plane {} is beyond the {MAX_TAKES} a bundle can hold", t.plane));
+            return Err(format!(
+                "{at}: plane {} is beyond the {MAX_TAKES} a bundle can hold",
+                t.plane
+            ));
         }
         if t.exposure_end_ns <= t.exposure_start_ns {
             return Err(format!(
