@@ -54,6 +54,22 @@ fn injected_device_faults_fail_the_job_clearly_and_the_next_capture_succeeds() {
 }
 
 #[test]
+fn a_panicking_job_fails_and_the_service_lives_on() {
+    let bus = Bus::start();
+    let d = Daemon::start_with(&bus, &bundle_dir("calm"), false, &["--fault", "panic:1"]);
+    runtime().block_on(async {
+        let e = capture(&bus).await.unwrap_err();
+        assert!(
+            e.contains("internal error: injected fault at plane 1"),
+            "{e}"
+        );
+        assert!(d.outputs().is_empty(), "{:?}", d.outputs());
+        let path = capture(&bus).await.unwrap();
+        assert!(Path::new(&path).exists());
+    });
+}
+
+#[test]
 fn a_removed_output_directory_fails_the_job_and_is_made_again_for_the_next() {
     let bus = Bus::start();
     let d = Daemon::start(&bus, &bundle_dir("shaken"), true);

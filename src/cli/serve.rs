@@ -43,7 +43,8 @@ pub struct ServeArgs {
     #[arg(long, requires = "replay")]
     pub paced: bool,
     /// With --replay: inject a failure into the first job, for tests of the failure paths:
-    /// camera-gone:P, frame-timeout:P, imu-stops:P or imu-nan:P (P a plane). Repeatable.
+    /// camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P or panic:P (P a plane).
+    /// Repeatable.
     #[arg(long, requires = "replay", value_name = "FAULT")]
     pub fault: Vec<crate::backend::replay::faults::Fault>,
     #[command(flatten)]

@@ -13,6 +13,7 @@ use crate::backend::replay::faults::Fault;
 use crate::capture::sweep::Monitor;
 use crate::stack::Progress;
 use anyhow::{Context, Result};
+use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -335,18 +336,32 @@ fn worker(
             },
             Source::Device => Source::Device,
         };
-        let result = Rig::open(&r.config, &source).and_then(|mut rig| {
-            for line in &rig.description {
-                tracing::info!(job = %r.id, "{line}");
-            }
-            job::run(
-                &mut rig,
-                &r.config.fuse,
-                &r.output,
-                r.report.as_deref(),
-                &reporter,
-                &reporter,
-            )
+        // A bug that panics fails the job, not the service: the worker would be gone and the
+        // service busy for good. Unwinding drops the rig, which releases the camera.
+        let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            Rig::open(&r.config, &source).and_then(|mut rig| {
+                for line in &rig.description {
+                    tracing::info!(job = %r.id, "{line}");
+                }
+                job::run(
+                    &mut rig,
+                    &r.config.fuse,
+                    &r.output,
+                    r.report.as_deref(),
+                    &reporter,
+                    &reporter,
+                )
+            })
+        }))
+        .unwrap_or_else(|panic| {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            Err(anyhow::anyhow!(
+                "internal error: {what} (please report this)"
+            ))
         });
         // Idle before the signal, so a client may start the next job as soon as it hears.
         let event = {

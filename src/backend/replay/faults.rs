@@ -16,6 +16,8 @@ pub enum Fault {
     ImuStops(usize),
     /// From this plane on, the IMU reads NaN.
     ImuNan(usize),
+    /// Moving the lens to this plane panics, as a bug would.
+    Panic(usize),
 }
 
 impl std::str::FromStr for Fault {
@@ -23,7 +25,7 @@ impl std::str::FromStr for Fault {
 
     /// `camera-gone:P`, `frame-timeout:P`, `imu-stops:P` or `imu-nan:P`, P a plane index.
     fn from_str(s: &str) -> Result<Fault, String> {
-        let usage = "expected camera-gone:P, frame-timeout:P, imu-stops:P or imu-nan:P";
+        let usage = "expected camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P or panic:P";
         let (kind, plane) = s
             .split_once(':')
             .ok_or_else(|| format!("fault {s:?}: {usage}"))?;
@@ -35,6 +37,7 @@ impl std::str::FromStr for Fault {
             "frame-timeout" => Fault::FrameTimeout(p),
             "imu-stops" => Fault::ImuStops(p),
             "imu-nan" => Fault::ImuNan(p),
+            "panic" => Fault::Panic(p),
             _ => return Err(format!("fault {s:?}: {usage}")),
         })
     }
@@ -82,6 +85,9 @@ impl<C: Camera> Camera for FaultyCamera<C> {
     }
 
     fn focus(&mut self, plane: usize, position: i32) -> Result<(), CaptureError> {
+        if self.faults.contains(&Fault::Panic(plane)) {
+            panic!("injected fault at plane {plane}");
+        }
         if self.faults.contains(&Fault::CameraGone(plane)) {
             return Err(CaptureError::device(
                 "replay camera",
