@@ -4,7 +4,10 @@
 
 mod common;
 
-use common::{bundle_dir, connect, dbus_error, load, outcome, runtime, Bus, Daemon};
+use common::{
+    bundle_dir, capture_and_wait, connect, dbus_error, load, outcome, runtime, subscribe, Bus,
+    Daemon,
+};
 use focusd::stack::metrics::psnr;
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
@@ -55,10 +58,7 @@ fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
         );
 
         // 2. A zbus client, with progress through every stage.
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&proxy).await;
         // Read concurrently: an unread signal stream holds up the whole connection.
         let mut progress = proxy.receive_progress().await.unwrap();
         let stages = std::sync::Arc::new(std::sync::Mutex::new(Vec::<(String, String)>::new()));
@@ -91,10 +91,7 @@ fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
         }
 
         // 3. busctl.
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&proxy).await;
         let o = Command::new("busctl")
             .arg(format!("--address={}", bus.address))
             .args([
@@ -127,10 +124,7 @@ fn busy_while_a_job_runs_and_cancel_leaves_nothing_behind() {
     let d = Daemon::start(&bus, &bundle_dir("shaken"), true);
     runtime().block_on(async {
         let (_conn, proxy) = connect(&bus).await;
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&proxy).await;
         let job = proxy.capture().await.unwrap();
         let (name, msg) = dbus_error(proxy.capture().await.unwrap_err());
         assert_eq!(name, "org.focusd.Error.Busy");
@@ -145,12 +139,7 @@ fn busy_while_a_job_runs_and_cancel_leaves_nothing_behind() {
         assert!(d.outputs().is_empty(), "{:?}", d.outputs());
 
         // The next capture runs to the end.
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
-        let job = proxy.capture().await.unwrap();
-        let path = outcome(&job, finished, failed).await.unwrap();
+        let path = capture_and_wait(&proxy).await.unwrap();
         assert!(Path::new(&path).exists());
     });
 }
@@ -168,10 +157,7 @@ fn a_bad_bundle_fails_clearly_and_the_daemon_keeps_serving_and_keeps_a_good_conf
     std::fs::write(&frame, &saved[..saved.len() / 3]).unwrap();
     runtime().block_on(async {
         let (_conn, proxy) = connect(&bus).await;
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&proxy).await;
         let job = proxy.capture().await.unwrap();
         let e = outcome(&job, finished, failed).await.unwrap_err();
         assert!(
@@ -195,12 +181,7 @@ fn a_bad_bundle_fails_clearly_and_the_daemon_keeps_serving_and_keeps_a_good_conf
         std::fs::write(&d.config, good).unwrap();
 
         std::fs::write(&frame, &saved).unwrap();
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
-        let job = proxy.capture().await.unwrap();
-        let path = outcome(&job, finished, failed).await.unwrap();
+        let path = capture_and_wait(&proxy).await.unwrap();
         // Still the old config's output directory.
         assert_eq!(Path::new(&path).parent(), Some(d.out().as_path()));
     });
@@ -219,10 +200,7 @@ fn sigterm_at(stage: &str) {
     let mut d = Daemon::start(&bus, &bundle_dir("shaken"), true);
     runtime().block_on(async {
         let (_conn, proxy) = connect(&bus).await;
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&proxy).await;
         let mut progress = proxy.receive_progress().await.unwrap();
         let job = proxy.capture().await.unwrap();
         while let Some(s) = progress.next().await {

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bundle_dir, connect, outcome, runtime, Bus, Daemon};
+use common::{bundle_dir, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon};
 use futures_util::StreamExt;
 use std::path::Path;
 use std::process::Command;
@@ -13,12 +13,7 @@ use std::time::Duration;
 /// One capture on `d`: its path, or its error.
 async fn capture(bus: &Bus) -> Result<String, String> {
     let (_conn, proxy) = connect(bus).await;
-    let (finished, failed) = (
-        proxy.receive_finished().await.unwrap(),
-        proxy.receive_failed().await.unwrap(),
-    );
-    let job = proxy.capture().await.unwrap();
-    outcome(&job, finished, failed).await
+    capture_and_wait(&proxy).await
 }
 
 #[test]
@@ -75,10 +70,7 @@ fn a_removed_output_directory_fails_the_job_and_is_made_again_for_the_next() {
     let d = Daemon::start(&bus, &bundle_dir("shaken"), true);
     runtime().block_on(async {
         let (_conn, proxy) = connect(&bus).await;
-        let (finished, failed) = (
-            proxy.receive_finished().await.unwrap(),
-            proxy.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&proxy).await;
         let mut progress = proxy.receive_progress().await.unwrap();
         let job = proxy.capture().await.unwrap();
         while let Some(s) = progress.next().await {
@@ -168,10 +160,7 @@ fn a_client_that_disconnects_mid_job_does_not_stop_it() {
     let d = Daemon::start(&bus, &bundle_dir("shaken"), true);
     runtime().block_on(async {
         let (_conn, watcher) = connect(&bus).await;
-        let (finished, failed) = (
-            watcher.receive_finished().await.unwrap(),
-            watcher.receive_failed().await.unwrap(),
-        );
+        let (finished, failed) = subscribe(&watcher).await;
         let job = {
             let (conn, proxy) = connect(&bus).await;
             let job = proxy.capture().await.unwrap();

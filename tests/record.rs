@@ -2,7 +2,7 @@
 //! sweep fails; `--config` and `check-config` refuse bad files naming the line.
 
 use focusd::backend::replay::{self, Bundle};
-use focusd::capture::sweep::{sweep, Sweep, SweepConfig, Unmonitored};
+use focusd::capture::sweep::{sweep, Sweep, Unmonitored};
 use focusd::capture::CaptureError;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -23,13 +23,7 @@ fn focusd(args: &[&str], paths: &[&Path]) -> Output {
 
 fn replay(dir: &Path) -> Result<Sweep, CaptureError> {
     let bundle = Bundle::open(dir).unwrap();
-    let lens = bundle.lens_positions();
-    let cfg = SweepConfig {
-        planes: bundle.planes(),
-        lens_near: lens.first().copied(),
-        lens_far: lens.last().copied(),
-        ..SweepConfig::default()
-    };
+    let cfg = focusd::service::job::defaults_for(&bundle);
     let (mut cam, mut imu, clock) = replay::open(bundle);
     sweep(&mut cam, &mut imu, &clock, &cfg, &Unmonitored)
 }

@@ -427,17 +427,19 @@ fn notify_status(state: &str) {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(state)]);
 }
 
+/// The config (built-in defaults without a file), with its output directory ready.
 fn load(path: &Option<PathBuf>) -> Result<Config> {
-    Ok(match path {
+    let config = match path {
         Some(p) => Config::load(p)?,
         None => Config::default(),
-    })
+    };
+    output::prepare(&config.output)?;
+    Ok(config)
 }
 
 /// Serves until SIGTERM or SIGINT, which cancel a running job and wait for it to end.
 pub fn serve(opts: ServeOptions) -> Result<()> {
     let config = load(&opts.config)?;
-    output::prepare(&config.output)?;
     let source = match &opts.replay {
         Some(dir) => Source::Replay {
             dir: dir.clone(),
@@ -544,11 +546,7 @@ fn reload(path: &Option<PathBuf>, shared: &Shared) {
         tracing::info!("SIGHUP: no config file to reload (running on the built-in defaults)");
         return;
     };
-    let loaded = Config::load(p).map_err(anyhow::Error::from).and_then(|c| {
-        output::prepare(&c.output)?;
-        Ok(c)
-    });
-    match loaded {
+    match load(path) {
         Ok(c) => {
             shared.lock().config = c;
             tracing::info!("SIGHUP: reloaded {}", p.display());

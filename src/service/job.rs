@@ -91,7 +91,7 @@ impl Rig {
 }
 
 /// Built-in sweep settings for a bundle: its planes and lens positions.
-fn defaults_for(bundle: &Bundle) -> SweepConfig {
+pub fn defaults_for(bundle: &Bundle) -> SweepConfig {
     let lens = bundle.lens_positions();
     SweepConfig {
         planes: bundle.planes(),

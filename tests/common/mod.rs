@@ -191,3 +191,18 @@ pub async fn outcome(
         .await
         .expect("no Finished or Failed within 60 s")
 }
+
+/// The Finished and Failed streams, subscribed before a call so no signal is missed.
+pub async fn subscribe(proxy: &Focusd1Proxy<'_>) -> (FinishedStream, FailedStream) {
+    (
+        proxy.receive_finished().await.unwrap(),
+        proxy.receive_failed().await.unwrap(),
+    )
+}
+
+/// One capture through `proxy`, to its end: the image's path, or the job's error.
+pub async fn capture_and_wait(proxy: &Focusd1Proxy<'_>) -> Result<String, String> {
+    let (finished, failed) = subscribe(proxy).await;
+    let job = proxy.capture().await.unwrap();
+    outcome(&job, finished, failed).await
+}

@@ -3,12 +3,12 @@
 
 use super::scan::{decode_record, parse_scan_type, Layout};
 use super::store::Store;
-use super::sysfs::{io_reason, read_attr, write_attr, Channels, Device};
+use super::sysfs::{io_reason, read_attr, set_attr, Channels, Device, Undo};
 use crate::backend::sys::wait_readable;
 use crate::capture::{CaptureError, ImuSample, Sensor};
 use std::fs::File;
 use std::io::{ErrorKind, Read};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -18,19 +18,6 @@ const BUFFER_LENGTH: &str = "256";
 /// How often the reader checks whether it should stop, ms.
 const WAKE_MS: i32 = 100;
 const TIMESTAMP: &str = "in_timestamp";
-
-/// Attributes changed so far, to put back in reverse order.
-type Undo = Vec<(PathBuf, String)>;
-
-/// Sets `path` to `value`, remembering the old value when it differs.
-fn set(path: &Path, value: &str, undo: &mut Undo) -> Result<(), CaptureError> {
-    let old = read_attr(path)?;
-    if old != value {
-        write_attr(path, value)?;
-        undo.push((path.to_path_buf(), old));
-    }
-    Ok(())
-}
 
 /// Sets the device up for buffered capture of `channels` with monotonic timestamps, enables
 /// the buffer and starts a reader thread. Returns the thread and what to put back once it has
@@ -89,7 +76,7 @@ fn prepare(
              cannot be matched to the camera's CLOCK_MONOTONIC",
         ));
     }
-    set(&clock, "monotonic", undo)?;
+    set_attr(&clock, "monotonic", undo)?;
     let wanted = channels
         .iter()
         .flat_map(|c| c.axes.iter().map(|a| a.channel.as_str()))
@@ -102,10 +89,10 @@ fn prepare(
                 format!("has no scan element {ch} (scan_elements/{ch}_en)"),
             ));
         }
-        set(&en, "1", undo)?;
+        set_attr(&en, "1", undo)?;
     }
     let layout = enabled_layout(dev)?;
-    set(&dev.path("buffer/length"), BUFFER_LENGTH, undo)?;
+    set_attr(&dev.path("buffer/length"), BUFFER_LENGTH, undo)?;
     let node = dev.char_dev(root);
     let file = File::open(&node).map_err(|e| {
         CaptureError::device(
@@ -113,7 +100,7 @@ fn prepare(
             format!("cannot open: {}", io_reason(&e)),
         )
     })?;
-    set(&enable, "1", undo)?;
+    set_attr(&enable, "1", undo)?;
     Ok((file, layout))
 }
 

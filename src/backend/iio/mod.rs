@@ -18,7 +18,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 use store::Store;
-use sysfs::{Channels, Device};
+use sysfs::{Channels, Device, Undo};
 
 /// How a device is read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -89,7 +89,7 @@ const DEFAULT_POLL_HZ: f64 = 100.0;
 /// A running reader and how to undo what it changed.
 struct Reader {
     thread: Option<JoinHandle<()>>,
-    restore: Vec<(PathBuf, String)>,
+    restore: Undo,
 }
 
 /// The gyroscope and accelerometer of a phone, read in the background from the moment it is
@@ -154,10 +154,10 @@ impl IioImu {
         cfg: &IioConfig,
         dev: Device,
         sensors: &[Sensor],
-        restore: &mut Vec<(PathBuf, String)>,
+        restore: &mut Undo,
     ) -> Result<JoinHandle<()>, CaptureError> {
         if cfg.finest_gyro_scale && sensors.contains(&Sensor::Gyro) {
-            restore.extend(finest_scale(&dev, Sensor::Gyro)?);
+            finest_scale(&dev, Sensor::Gyro, restore)?;
         }
         let rate = sysfs::sampling_frequency(&dev, sensors, cfg.sampling_hz)?;
         let channels = sensors
@@ -220,16 +220,16 @@ pub(crate) fn put_back(restore: &[(PathBuf, String)]) {
     }
 }
 
-/// Writes the smallest value of `in_<kind>_scale_available` to `in_<kind>_scale`; returns the
-/// file and its old value, to put back.
-fn finest_scale(dev: &Device, sensor: Sensor) -> Result<Option<(PathBuf, String)>, CaptureError> {
+/// Writes the smallest value of `in_<kind>_scale_available` to `in_<kind>_scale`, remembering
+/// the old value in `undo`.
+fn finest_scale(dev: &Device, sensor: Sensor, undo: &mut Undo) -> Result<(), CaptureError> {
     let k = sysfs::kind(sensor);
     let (file, available) = (
         dev.path(&format!("in_{k}_scale")),
         dev.path(&format!("in_{k}_scale_available")),
     );
     if !file.exists() || !available.exists() {
-        return Ok(None);
+        return Ok(());
     }
     let list = sysfs::read_attr(&available)?;
     let finest = list
@@ -241,15 +241,10 @@ fn finest_scale(dev: &Device, sensor: Sensor) -> Result<Option<(PathBuf, String)
                 .map(|x| (x, v))
         })
         .min_by(|a, b| a.0.total_cmp(&b.0));
-    let Some((_, text)) = finest else {
-        return Ok(None);
-    };
-    let old = sysfs::read_attr(&file)?;
-    if old == text {
-        return Ok(None);
+    match finest {
+        Some((_, text)) => sysfs::set_attr(&file, text, undo),
+        None => Ok(()),
     }
-    sysfs::write_attr(&file, text)?;
-    Ok(Some((file, old)))
 }
 
 impl Imu for IioImu {

@@ -94,6 +94,19 @@ pub fn write_attr(path: &Path, value: &str) -> Result<(), CaptureError> {
         .map_err(|e| file_error(path, format!("cannot write {value:?}: {}", io_reason(&e))))
 }
 
+/// Attributes changed so far with their old values, to put back in reverse order.
+pub type Undo = Vec<(PathBuf, String)>;
+
+/// Sets `path` to `value`, remembering the old value in `undo` when it differs.
+pub fn set_attr(path: &Path, value: &str, undo: &mut Undo) -> Result<(), CaptureError> {
+    let old = read_attr(path)?;
+    if old != value {
+        write_attr(path, value)?;
+        undo.push((path.to_path_buf(), old));
+    }
+    Ok(())
+}
+
 /// A finite number attribute (scales, offsets, frequencies).
 pub fn read_f64(path: &Path) -> Result<f64, CaptureError> {
     let s = read_attr(path)?;
