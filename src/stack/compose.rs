@@ -17,6 +17,7 @@ use super::pyramid::{
 };
 use super::Progress;
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// A label counts as present at a level where its blurred mask exceeds this: anywhere within
 /// the level's kernel reach, so every seam is crossed by a contrast choice.
@@ -24,6 +25,7 @@ const PRESENT: f32 = 1e-3;
 /// Reach of the finest band beyond a label region, in pixels (σ of the mask blur).
 const FINE_REACH: f32 = 1.5;
 
+#[derive(Clone, Copy)]
 pub enum Select<'a> {
     MaxContrast,
     /// Per-pixel frame index, and the most pyramid levels to use.
@@ -52,17 +54,19 @@ impl FrameBuffers {
         Self { bands, mask, reach }
     }
 
-    /// Builds frame `i`'s pyramids and, for `Select::Labels`, where it may be chosen.
-    fn fill<T: Sample>(&mut self, frame: &Image<T>, select: &Select, i: usize) {
+    /// Builds the pyramids of `samples` (frame `i`'s rows of the band, interleaved) and, for
+    /// `Select::Labels`, where it may be chosen.
+    fn fill<T: Sample>(&mut self, samples: &[T], select: &Select, i: usize) {
         // `Image::to_planes` in one parallel pass.
-        let (n, scale) = (frame.channels, 1.0 / T::MAX);
+        let (n, scale) = (self.bands.len(), 1.0 / T::MAX);
+        let (width, height) = (self.bands[0][0].width, self.bands[0][0].height);
         let (levels0, strip) = (
             self.bands.iter_mut().map(|b| &mut b[0].data[..]),
-            strip_rows(frame.height) * frame.width,
+            strip_rows(height) * width,
         );
         chunk_groups(levels0, strip)
             .into_par_iter()
-            .zip(frame.data.par_chunks(strip * n))
+            .zip(samples.par_chunks(strip * n))
             .for_each(|(planes, px)| {
                 for (c, plane) in planes.into_iter().enumerate() {
                     for (o, px) in plane.iter_mut().zip(px.chunks_exact(n)) {
@@ -102,37 +106,140 @@ impl FrameBuffers {
 }
 
 /// The fused image and, per pixel, the frame its finest band came from.
+///
+/// Composed in row bands of at most `rows` output rows (rounded to the pyramid's grid), so
+/// the pyramids of a band, not of the whole image, are in memory: see [`bands`].
 pub fn compose<T: Sample>(
     frames: &[Image<T>],
     select: Select,
+    rows: usize,
     progress: &dyn Progress,
 ) -> (Image<T>, Vec<u8>) {
-    let (w, h) = (frames[0].width, frames[0].height);
-    let levels = match select {
-        Select::MaxContrast => levels_for(w, h),
-        Select::Labels(_, max) => levels_for(w, h).min(max.max(1)),
-    };
+    let (w, h, channels) = (frames[0].width, frames[0].height, frames[0].channels);
+    let levels = pyramid_levels(
+        w,
+        h,
+        match select {
+            Select::MaxContrast => None,
+            Select::Labels(_, max) => Some(max),
+        },
+    );
+    let bands = bands(h, levels, rows);
+    // Per band, the frames it takes anything from.
+    let used: Vec<Vec<usize>> = bands
+        .iter()
+        .map(|b| match select {
+            Select::MaxContrast => (0..frames.len()).collect(),
+            Select::Labels(labels, _) => {
+                let mut seen = vec![false; frames.len()];
+                labels[b.ext.start * w..b.ext.end * w]
+                    .iter()
+                    .for_each(|&l| seen[l as usize] = true);
+                (0..frames.len()).filter(|&i| seen[i]).collect()
+            }
+        })
+        .collect();
+    progress.stage("compose", used.iter().map(Vec::len).sum());
+    let mut image = Image::new(w, h, channels);
+    let mut choice = vec![0u8; w * h];
+    for (band, used) in bands.iter().zip(&used) {
+        let (e0, e1) = (band.ext.start, band.ext.end);
+        let select = match select {
+            Select::MaxContrast => Select::MaxContrast,
+            Select::Labels(labels, _) => Select::Labels(&labels[e0 * w..e1 * w], levels),
+        };
+        let (part, part_choice) = compose_band(
+            frames
+                .iter()
+                .map(|f| &f.data[e0 * w * channels..e1 * w * channels])
+                .collect(),
+            (w, e1 - e0, channels),
+            &select,
+            levels,
+            used,
+            progress,
+        );
+        let (keep, skip) = (band.keep.len() * w, (band.keep.start - e0) * w);
+        image.data[band.keep.start * w * channels..][..keep * channels]
+            .copy_from_slice(&part.data[skip * channels..][..keep * channels]);
+        choice[band.keep.start * w..][..keep].copy_from_slice(&part_choice[skip..][..keep]);
+    }
+    (image, choice)
+}
+
+/// A band of output rows, `keep`, and the rows its pyramids are built on, `ext`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Band {
+    pub ext: Range<usize>,
+    pub keep: Range<usize>,
+}
+
+/// Splits `h` rows into bands of at most `rows` kept rows for a pyramid of `levels`.
+///
+/// Each band starts on the coarsest level's grid and is widened by a margin beyond the reach of
+/// every kernel on its kept rows (band and residual pyramids 2^(levels+1), the band-energy
+/// blur 3·2^(levels−2), the collapse 2^levels rows, all under 8·2^(levels−1)): the band's own
+/// edges then never touch the kept rows, so the bands join exactly as one image would.
+pub fn bands(h: usize, levels: usize, rows: usize) -> Vec<Band> {
+    let (grid, margin) = band_grid(levels);
+    let rows = (rows / grid).max(1) * grid;
+    if rows.saturating_add(2 * margin) >= h {
+        return vec![Band {
+            ext: 0..h,
+            keep: 0..h,
+        }];
+    }
+    (0..h)
+        .step_by(rows)
+        .map(|b0| {
+            let b1 = (b0 + rows).min(h);
+            Band {
+                ext: b0.saturating_sub(margin)..(b1 + margin).min(h),
+                keep: b0..b1,
+            }
+        })
+        .collect()
+}
+
+/// Pyramid levels of a compose of `w`×`h`: as many as the size allows, at most `max`.
+pub fn pyramid_levels(w: usize, h: usize, max: Option<usize>) -> usize {
+    levels_for(w, h).min(max.unwrap_or(usize::MAX).max(1))
+}
+
+/// The row grid bands start on, and the margin each is widened by, for `levels`.
+pub fn band_grid(levels: usize) -> (usize, usize) {
+    let grid = 1usize << (levels - 1);
+    (grid, 8 * grid)
+}
+
+/// Bytes of working memory per row of a band `width` wide: one frame's pyramids and its mask's,
+/// the output's pyramids, the band energies (a pyramid is 4/3 of its base), the band's image.
+pub fn bytes_per_row(width: usize, channels: usize, sample_bytes: usize) -> usize {
+    let pyramid = width * 4 * 4 / 3;
+    width * (sample_bytes * channels + 1 + 4) + pyramid * (2 * channels + 2)
+}
+
+/// Composes one band: `frames` are every frame's rows of it, `(w, h, channels)` its size.
+fn compose_band<T: Sample>(
+    frames: Vec<&[T]>,
+    (w, h, channels): (usize, usize, usize),
+    select: &Select,
+    levels: usize,
+    used: &[usize],
+    progress: &dyn Progress,
+) -> (Image<T>, Vec<u8>) {
     let top = levels - 1;
     let n = frames.len();
-    let used: Vec<usize> = match select {
-        Select::MaxContrast => (0..n).collect(),
-        Select::Labels(labels, _) => {
-            let mut seen = vec![false; n];
-            labels.iter().for_each(|&l| seen[l as usize] = true);
-            (0..n).filter(|&i| seen[i]).collect()
-        }
-    };
-    progress.stage("compose", used.len());
     let labels = matches!(select, Select::Labels(..));
-    let mut frame = FrameBuffers::new(w, h, frames[0].channels, levels, labels);
+    let mut frame = FrameBuffers::new(w, h, channels, levels, labels);
     let mut out: Vec<Vec<Plane>> = frame.bands.iter().map(|b| zeros_like(b)).collect();
     let mut best: Vec<Plane> = frame.bands[0][..top]
         .iter()
         .map(|b| Plane::from_vec(b.width, b.height, 1, vec![-1.0; b.pixels()]))
         .collect();
     let mut choice = vec![0u8; w * h];
-    for &i in &used {
-        frame.fill(&frames[i], &select, i);
+    for &i in used {
+        frame.fill(frames[i], select, i);
         for (l, best) in best.iter_mut().enumerate() {
             let out = out.iter_mut().map(|o| &mut o[l].data[..]).collect();
             let choice = (l == 0).then_some(&mut choice[..]);
@@ -289,7 +396,12 @@ mod tests {
         let a = Image::<u8>::from_fn(40, 30, 3, |x, y, c| ((x * 5 + y * 3 + c * 40) % 256) as u8);
         let b = Image::<u8>::from_fn(40, 30, 3, |_, _, _| 200);
         let frames = [a.clone(), b];
-        let (out, choice) = compose(&frames, Select::Labels(&[0; 1200], 8), &NoProgress);
+        let (out, choice) = compose(
+            &frames,
+            Select::Labels(&[0; 1200], 8),
+            usize::MAX,
+            &NoProgress,
+        );
         let err = a
             .data
             .iter()
@@ -300,7 +412,7 @@ mod tests {
         assert!(err <= 1, "max error {err}");
         assert!(choice.iter().all(|&c| c == 0));
         let labels: Vec<u8> = (0..1200).map(|i| (i % 40 >= 20) as u8).collect();
-        let (out, choice) = compose(&frames, Select::Labels(&labels, 8), &NoProgress);
+        let (out, choice) = compose(&frames, Select::Labels(&labels, 8), usize::MAX, &NoProgress);
         for y in 0..30 {
             assert_eq!(choice[y * 40 + 2], 0);
             assert_eq!(choice[y * 40 + 37], 1);
@@ -324,7 +436,12 @@ mod tests {
             },
         );
         let flat = Image::<u8>::from_fn(64, 64, 1, |_, _, _| 130);
-        let (out, choice) = compose(&[flat, tex.clone()], Select::MaxContrast, &NoProgress);
+        let (out, choice) = compose(
+            &[flat, tex.clone()],
+            Select::MaxContrast,
+            usize::MAX,
+            &NoProgress,
+        );
         let inner = |p: usize| (8..56).contains(&(p % 64)) && (8..56).contains(&(p / 64));
         let picked = (0..64 * 64).filter(|&p| inner(p) && choice[p] == 1).count();
         assert!(picked > 48 * 48 * 9 / 10, "picked {picked}");
@@ -334,5 +451,50 @@ mod tests {
             .max()
             .unwrap();
         assert!(diff < 40, "max diff {diff}");
+    }
+
+    /// A stack tall enough for several bands, with labels in stripes and blobs.
+    fn tall_stack() -> (Vec<Image<u8>>, Vec<u8>) {
+        let (w, h) = (96, 700);
+        let frames: Vec<Image<u8>> = (0..3)
+            .map(|k| {
+                Image::from_fn(w, h, 3, |x, y, c| {
+                    ((x * (3 + k) + y * (5 + 2 * k) + c * 70 + (x * y) % (7 + k)) % 256) as u8
+                })
+            })
+            .collect();
+        let labels = (0..w * h)
+            .map(|p| {
+                let (x, y) = (p % w, p / w);
+                ((x / 20 + y / 37 + (x * x + y) / 500) % 3) as u8
+            })
+            .collect();
+        (frames, labels)
+    }
+
+    #[test]
+    fn bands_join_exactly_as_one_image() {
+        let (frames, labels) = tall_stack();
+        for select in [Select::Labels(&labels, 5), Select::MaxContrast] {
+            let whole = compose(&frames, select, usize::MAX, &NoProgress);
+            let levels = match select {
+                Select::Labels(..) => 5,
+                Select::MaxContrast => levels_for(96, 700),
+            };
+            let b = bands(700, levels, 40);
+            assert!(b.len() > 1 || levels > 5, "{} bands", b.len());
+            assert_eq!(compose(&frames, select, 40, &NoProgress), whole);
+        }
+        let b = bands(700, 5, 40);
+        assert_eq!(b.len(), 700usize.div_ceil(32));
+        assert_eq!(
+            b[0],
+            Band {
+                ext: 0..160,
+                keep: 0..32
+            }
+        );
+        assert!(b.windows(2).all(|p| p[0].keep.end == p[1].keep.start));
+        assert_eq!(b.last().unwrap().keep.end, 700);
     }
 }
