@@ -29,6 +29,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    cli::malloc::tune();
     let args = Args::parse();
     let result = match &args.command {
         Command::Capture(a) => cli::capture::run(a),

@@ -137,3 +137,40 @@ fn aligned_stack_beats_inputs_and_baseline() {
 fn small_aligned_stack_beats_inputs_and_baseline() {
     check_stack("small");
 }
+
+/// A budget below what the stack needs still fuses, in the smallest bands and registering one
+/// frame at a time, and gives exactly the image and labels of a roomy budget.
+#[test]
+fn a_tight_memory_budget_changes_nothing_but_the_bands() {
+    let s = stack("handheld");
+    let (w, h) = (s.frames[0].width, s.frames[0].height);
+    let roomy = fuse(s.frames.clone(), &FuseParams::default(), &NoProgress).unwrap();
+    assert_eq!(roomy.memory.band_rows, usize::MAX, "{:?}", roomy.memory);
+    for method in [Method::GraphCut, Method::Pyramid] {
+        let params = |memory| FuseParams {
+            method,
+            memory,
+            ..FuseParams::default()
+        };
+        let whole = match method {
+            Method::GraphCut => roomy.image.clone(),
+            Method::Pyramid => {
+                fuse(s.frames.clone(), &params(1 << 30), &NoProgress)
+                    .unwrap()
+                    .image
+            }
+        };
+        let tight = fuse(s.frames.clone(), &params(1 << 20), &NoProgress).unwrap();
+        let plan = &tight.memory;
+        assert!(
+            !plan.fits() && plan.floor > w * h * 3 * s.frames.len(),
+            "{plan:?}"
+        );
+        assert_eq!(plan.concurrent_frames, 1);
+        if method == Method::GraphCut {
+            assert!(plan.band_rows < h / 2, "{plan:?}");
+            assert_eq!(tight.labels, roomy.labels);
+        }
+        assert!(tight.image == whole, "{method:?}: banded image differs");
+    }
+}

@@ -4,6 +4,7 @@ use super::progress::Bar;
 use crate::imageio::{self as io, Decoded};
 use crate::stack::fuse::{fuse, Alignment, FuseError, FuseParams, Method};
 use crate::stack::image::{Image, Sample};
+use crate::stack::memory::{Plan, DEFAULT_BUDGET};
 use crate::stack::metrics::tenengrad;
 use crate::stack::register::{Method as Registered, RegisterError, RegisterParams};
 use crate::stack::transform::{FrameTransform, Transforms};
@@ -53,6 +54,12 @@ pub struct FuseArgs {
     /// Seam weight λ against the focus cost, 0.01..=10; higher gives fewer, smoother seams.
     #[arg(long, default_value_t = 0.3)]
     pub lambda: f32,
+    /// Memory budget in MiB, 64..=65536: a tighter one composes in smaller bands and registers
+    /// fewer frames at once (slower, same image); below what the stack needs at least, it fuses
+    /// anyway in the smallest bands and says so.
+    #[arg(long, value_name = "MIB", default_value_t = (DEFAULT_BUDGET >> 20) as u32,
+          value_parser = clap::value_parser!(u32).range(64..=65536))]
+    pub memory: u32,
 }
 
 /// Checks every argument that can be checked before any pixel work.
@@ -187,6 +194,7 @@ fn run_typed<T: Sample>(
         align: (!a.no_align).then(RegisterParams::default),
         reference,
         crop: a.crop,
+        memory: (a.memory as usize) << 20,
         ..FuseParams::default()
     };
     params.graphcut.lambda = a.lambda;
@@ -245,6 +253,7 @@ fn run_typed<T: Sample>(
             r.width, r.height, r.x, r.y
         );
     }
+    eprintln!("  {}", describe(&fused.memory));
     eprintln!("  time  load {:>8.1} ms", load_time.as_secs_f64() * 1e3);
     for (stage, d) in &fused.timings {
         eprintln!("  time  {stage:<5}{:>8.1} ms", d.as_secs_f64() * 1e3);
@@ -259,6 +268,15 @@ fn run_typed<T: Sample>(
         a.output.display()
     );
     Ok(())
+}
+
+/// The memory plan in one line, or the warning that the budget is below what the stack needs.
+fn describe(plan: &Plan) -> String {
+    if plan.fits() {
+        format!("memory  {plan}")
+    } else {
+        format!("warning: {plan}; raise --memory or fuse fewer or smaller frames")
+    }
 }
 
 /// Names the input file of a frame the registration could not place.
@@ -312,7 +330,10 @@ fn with_exif_of(reference: &Path, jpeg: Vec<u8>) -> Result<Vec<u8>> {
     let Some(exif) = exif else {
         return Ok(jpeg);
     };
+    // The frames were turned upright when loaded, so the output is too.
+    let mut exif = exif.to_vec();
+    io::exif_upright(&mut exif);
     let mut out = Jpeg::from_bytes(Bytes::from(jpeg)).context("re-reading the encoded output")?;
-    out.set_exif(Some(exif));
+    out.set_exif(Some(Bytes::from(exif)));
     Ok(out.encoder().bytes().to_vec())
 }

@@ -6,6 +6,7 @@ use crate::backend::v4l2::V4l2Config;
 use crate::capture::sweep::SweepConfig;
 use crate::stack::fuse::{FuseParams, Method};
 use crate::stack::graphcut::GraphCutParams;
+use crate::stack::memory::DEFAULT_BUDGET;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -21,6 +22,8 @@ pub struct FuseConfig {
     pub quality: u8,
     /// Crop to the area every registered frame covers.
     pub crop: bool,
+    /// Memory budget of a fuse in MiB, 64..=65536 (see `stack::memory`).
+    pub memory_mb: u32,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -37,6 +40,7 @@ impl Default for FuseConfig {
             lambda: GraphCutParams::default().lambda,
             quality: 92,
             crop: false,
+            memory_mb: (DEFAULT_BUDGET >> 20) as u32,
         }
     }
 }
@@ -55,6 +59,12 @@ impl FuseConfig {
                 self.quality
             ));
         }
+        if !(64..=65536).contains(&self.memory_mb) {
+            return Err(format!(
+                "memory_mb = {} is out of range 64..=65536",
+                self.memory_mb
+            ));
+        }
         Ok(())
     }
 
@@ -67,6 +77,7 @@ impl FuseConfig {
             },
             reference: frames.saturating_sub(1) / 2,
             crop: self.crop,
+            memory: (self.memory_mb as usize) << 20,
             ..FuseParams::default()
         };
         p.graphcut.lambda = self.lambda;

@@ -148,6 +148,9 @@ pub fn run(
     let params = fuse_cfg.params(frames.len());
     let images = frames.into_iter().map(|t: Take| t.image).collect();
     let fused = fuse(images, &params, progress)?;
+    if !fused.memory.fits() {
+        tracing::warn!("{}; raise [fuse] memory_mb", fused.memory);
+    }
     if progress.cancelled() {
         return Err(FuseError::Cancelled.into());
     }

@@ -4,6 +4,7 @@ use super::align::{estimate_exposure, warp_frame_into, Coverage, Exposure, Rect}
 use super::compose::{compose, Select};
 use super::graphcut::{label_stack, GraphCutParams};
 use super::image::{Image, Sample};
+use super::memory::{self, Plan, Stack, DEFAULT_BUDGET};
 use super::register::{
     register_with, Method as Registered, RegisterError, RegisterParams, Registration,
 };
@@ -30,6 +31,8 @@ pub struct FuseParams {
     pub reference: usize,
     /// Crop the output to the largest rectangle every aligned frame covers.
     pub crop: bool,
+    /// Bytes the fuse should stay within (see `memory::plan`).
+    pub memory: usize,
 }
 
 impl Default for FuseParams {
@@ -40,6 +43,7 @@ impl Default for FuseParams {
             align: Some(RegisterParams::default()),
             reference: 0,
             crop: false,
+            memory: DEFAULT_BUDGET,
         }
     }
 }
@@ -98,6 +102,8 @@ pub struct Fused<T> {
     pub crop: Option<Rect>,
     /// Wall time of each stage, in order.
     pub timings: Vec<(&'static str, Duration)>,
+    /// How the memory budget was spent.
+    pub memory: Plan,
 }
 
 /// Checks that a stack can be fused at all.
@@ -145,12 +151,17 @@ pub fn fuse<T: Sample>(
         t = Instant::now();
     };
     let reference = params.reference;
+    let plan = memory::plan(&stack_of(&frames), params);
     let alignment = match &params.align {
         Some(p) => {
             progress.stage("register", 1);
             let size = (frames[0].width, frames[0].height);
             let luma = |i: usize| Cow::Owned(frames[i].luma());
-            let registration = register_with(frames.len(), size, luma, reference, p)?;
+            let p = RegisterParams {
+                concurrent_frames: plan.concurrent_frames,
+                ..p.clone()
+            };
+            let registration = register_with(frames.len(), size, luma, reference, &p)?;
             progress.advance(1);
             lap("register", &mut timings);
             go_on(progress)?;
@@ -183,6 +194,7 @@ pub fn fuse<T: Sample>(
             let (image, _) = compose(
                 &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),
+                plan.band_rows,
                 progress,
             );
             lap("compose", &mut timings);
@@ -190,7 +202,7 @@ pub fn fuse<T: Sample>(
             (image, labels)
         }
         Method::Pyramid => {
-            let r = compose(&frames, Select::MaxContrast, progress);
+            let r = compose(&frames, Select::MaxContrast, plan.band_rows, progress);
             lap("pyramid", &mut timings);
             go_on(progress)?;
             r
@@ -212,7 +224,18 @@ pub fn fuse<T: Sample>(
         alignment,
         crop,
         timings,
+        memory: plan,
     })
+}
+
+fn stack_of<T>(frames: &[Image<T>]) -> Stack {
+    Stack {
+        frames: frames.len(),
+        width: frames[0].width,
+        height: frames[0].height,
+        channels: frames[0].channels,
+        sample_bytes: size_of::<T>(),
+    }
 }
 
 /// Estimates every frame's exposure and warps it onto the reference, in place. A frame

@@ -8,6 +8,7 @@ pub mod fuse;
 pub mod graphcut;
 pub mod image;
 pub mod maxflow;
+pub mod memory;
 pub mod metrics;
 pub mod pyramid;
 pub mod register;

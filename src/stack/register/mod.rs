@@ -74,6 +74,9 @@ pub struct RegisterParams {
     pub ransac_iterations: usize,
     /// Seed of RANSAC's sampling: the same input gives the same result.
     pub seed: u64,
+    /// Frames prepared at once, each with its full-resolution luma in memory (4 bytes a pixel);
+    /// 0: one per thread. A memory budget lowers it (see `stack::memory`).
+    pub concurrent_frames: usize,
 }
 
 impl Default for RegisterParams {
@@ -92,6 +95,7 @@ impl Default for RegisterParams {
             min_inliers: 16,
             ransac_iterations: 2000,
             seed: 0x5eed,
+            concurrent_frames: 0,
         }
     }
 }
@@ -203,24 +207,35 @@ pub fn register_with<'a>(
     let det = level_within(w, h, p.detect_pixels);
     let fine = level_within(w, h, p.refine_pixels);
     let coarse = fine + p.refine_levels.max(1) - 1;
-    let frames: Vec<Prepared> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let l = luma(i);
-            if (l.width, l.height) != (w, h) {
-                return Err(RegisterError::Size {
-                    frame: i,
-                    width: l.width,
-                    height: l.height,
-                    ref_width: w,
-                    ref_height: h,
-                });
-            }
-            let levels = Levels::build(&l, det.min(fine), det.max(coarse));
-            let features = features(levels.get(det.min(levels.last())), det, p);
-            Ok(Prepared { levels, features })
-        })
-        .collect::<Result<_, _>>()?;
+    // Unlimited, rayon still prepares one frame per thread at a time.
+    let at_once = match p.concurrent_frames {
+        0 => n.max(1),
+        k => k,
+    };
+    let order: Vec<usize> = (0..n).collect();
+    let prepare = |i: usize| {
+        let l = luma(i);
+        if (l.width, l.height) != (w, h) {
+            return Err(RegisterError::Size {
+                frame: i,
+                width: l.width,
+                height: l.height,
+                ref_width: w,
+                ref_height: h,
+            });
+        }
+        let levels = Levels::build(&l, det.min(fine), det.max(coarse));
+        let features = features(levels.get(det.min(levels.last())), det, p);
+        Ok(Prepared { levels, features })
+    };
+    let mut frames: Vec<Prepared> = Vec::with_capacity(n);
+    for group in order.chunks(at_once) {
+        let prepared: Vec<Prepared> = group
+            .par_iter()
+            .map(|&i| prepare(i))
+            .collect::<Result<_, _>>()?;
+        frames.extend(prepared);
+    }
     let m = Matcher {
         frames: &frames,
         p,

@@ -1,0 +1,176 @@
+//! What a fuse holds in memory, and how it is fitted to a budget.
+//!
+//! The frames, their focus maps and the label map are held whole for the whole fuse; what a
+//! budget shrinks is the rest: the compose works in row bands of the output (see
+//! `compose::bands`) and registration prepares fewer frames at once. Below what even the
+//! smallest bands need, the fuse still runs, in the smallest bands: a phone that swaps is
+//! slower, one whose job aborted has nothing. Estimates are in bytes and are checked against
+//! `/usr/bin/time -v` by `scripts/bench-memory`.
+
+use super::compose::{band_grid, bytes_per_row, pyramid_levels};
+use super::fuse::{FuseParams, Method};
+use std::fmt;
+
+/// The default budget: a PinePhone has 2–3 GB shared with the phone's other work.
+pub const DEFAULT_BUDGET: usize = 512 << 20;
+
+/// Resident memory of the process before any frame: code, thread stacks, allocator.
+const RUNTIME: usize = 8 << 20;
+
+/// A stack's geometry.
+#[derive(Clone, Copy, Debug)]
+pub struct Stack {
+    pub frames: usize,
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    /// 1 for 8-bit frames, 2 for 16-bit.
+    pub sample_bytes: usize,
+}
+
+/// How a fuse spends its memory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    pub budget: usize,
+    /// Output rows composed at once (`usize::MAX`: the whole image in one band).
+    pub band_rows: usize,
+    /// Frames registered at once: one per thread, or fewer when the budget is tight.
+    pub concurrent_frames: usize,
+    /// Estimated peak of this plan, and of the leanest one (bands as tall as their margins, one
+    /// frame registered at once).
+    pub peak: usize,
+    pub floor: usize,
+}
+
+impl Plan {
+    pub fn fits(&self) -> bool {
+        self.floor <= self.budget
+    }
+}
+
+impl fmt::Display for Plan {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let mib = |b: usize| b.div_ceil(1 << 20);
+        let bands = match self.band_rows {
+            usize::MAX => "whole-image compose".to_string(),
+            r => format!("compose in bands of {r} rows"),
+        };
+        if self.fits() {
+            let (peak, budget) = (mib(self.peak), mib(self.budget));
+            write!(f, "about {peak} MiB of the {budget} MiB budget ({bands})")
+        } else {
+            let (floor, budget) = (mib(self.floor), mib(self.budget));
+            write!(
+                f,
+                "this stack needs about {floor} MiB even in the smallest bands, over the \
+                 {budget} MiB memory budget; fused anyway ({bands})"
+            )
+        }
+    }
+}
+
+/// Plans a fuse of `s` with `p` in `p.memory` bytes.
+pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
+    let px = s.width * s.height;
+    let frame = px * s.channels * s.sample_bytes;
+    let frames = s.frames * frame;
+    let budget = p.memory;
+    let room = budget.saturating_sub(RUNTIME);
+    // Each frame being prepared: its luma (4 bytes a pixel) and the first reduced levels.
+    let register = |k: usize| frames + k * px * 6;
+    let warp = frames + 2 * frame + 4 * px;
+    // Focus amplitudes (u16 per frame), their maximum, the label, free and strip maps, and
+    // the luma of the frame being measured.
+    let labels = match p.method {
+        Method::GraphCut => frames + s.frames * 2 * px + 9 * px,
+        Method::Pyramid => 0,
+    };
+    let levels = pyramid_levels(
+        s.width,
+        s.height,
+        match p.method {
+            Method::GraphCut => Some(p.graphcut.blend_levels),
+            Method::Pyramid => None,
+        },
+    );
+    let (grid, margin) = band_grid(levels);
+    // Smaller bands than their margin would spend most of the compose on the margins.
+    let least = margin;
+    let per_row = bytes_per_row(s.width, s.channels, s.sample_bytes);
+    // The label map, the output image and the choice map, beside the frames.
+    let compose_base = frames + 2 * px + frame;
+    let compose =
+        |rows: usize| compose_base + rows.saturating_add(2 * margin).min(s.height) * per_row;
+    let threads = rayon::current_num_threads().min(s.frames.max(1));
+    let concurrent = (1..=threads)
+        .rev()
+        .find(|&k| register(k) <= room)
+        .unwrap_or(1);
+    let fit_rows = (room.saturating_sub(compose_base) / per_row).saturating_sub(2 * margin);
+    let band_rows = if fit_rows + 2 * margin >= s.height {
+        usize::MAX
+    } else {
+        (fit_rows / grid).max(least / grid) * grid
+    };
+    let peak_of = |k: usize, rows: usize| {
+        RUNTIME
+            + [register(k), warp, labels, compose(rows)]
+                .into_iter()
+                .max()
+                .unwrap_or(0)
+    };
+    Plan {
+        budget,
+        band_rows,
+        concurrent_frames: concurrent,
+        peak: peak_of(concurrent, band_rows),
+        floor: peak_of(1, least),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stack(frames: usize, width: usize, height: usize) -> Stack {
+        Stack {
+            frames,
+            width,
+            height,
+            channels: 3,
+            sample_bytes: 1,
+        }
+    }
+
+    fn params(mb: usize) -> FuseParams {
+        FuseParams {
+            memory: mb << 20,
+            ..FuseParams::default()
+        }
+    }
+
+    #[test]
+    fn a_roomy_budget_composes_whole_and_a_tight_one_in_bands() {
+        let s = stack(10, 2048, 1536);
+        let roomy = plan(&s, &params(4096));
+        assert_eq!(roomy.band_rows, usize::MAX);
+        assert!(roomy.fits() && roomy.peak <= roomy.budget);
+        let tight = plan(&s, &params(220));
+        assert!(tight.band_rows < 1536, "{tight:?}");
+        assert_eq!(tight.band_rows % 16, 0);
+        assert!(
+            tight.peak <= tight.budget && tight.peak < roomy.peak,
+            "{tight:?}"
+        );
+    }
+
+    #[test]
+    fn below_the_floor_the_smallest_bands_are_planned_not_an_error() {
+        let s = stack(15, 3000, 2000);
+        let p = plan(&s, &params(100));
+        assert!(!p.fits());
+        assert_eq!(p.band_rows, 128);
+        assert_eq!(p.peak, p.floor);
+        assert!(p.floor > 15 * 3000 * 2000 * 3, "the frames alone are more");
+    }
+}
