@@ -1,8 +1,10 @@
-//! Image files in and out: decoding with limits, encoding by extension, atomic writes, EXIF.
+//! Image files in and out: decoding with limits and EXIF orientation, encoding by extension,
+//! atomic writes.
 
 use crate::stack::image::{Image, Sample};
 use anyhow::{anyhow, bail, Context, Result};
-use image::{DynamicImage, ImageFormat};
+use image::metadata::Orientation;
+use image::{DynamicImage, ImageDecoder, ImageFormat};
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -56,10 +58,66 @@ pub fn load(path: &Path) -> Result<Decoded> {
     limits.max_image_height = Some(h);
     limits.max_alloc = Some(MAX_PIXELS * 8);
     reader.limits(limits);
-    let img = reader
-        .decode()
-        .map_err(|e| anyhow!("{name}: corrupt or truncated image: {e}"))?;
+    let corrupt = |e| anyhow!("{name}: corrupt or truncated image: {e}");
+    let mut decoder = reader.into_decoder().map_err(corrupt)?;
+    if decoder.total_bytes() > MAX_PIXELS * 8 {
+        bail!("{name}: {w}x{h} is larger than the {MAX_PIXELS}-pixel limit");
+    }
+    // Phones store portrait shots as landscape pixels plus an EXIF orientation: the frames are
+    // turned upright here, so a stack mixing orientations still registers, and the output's
+    // copy of the reference's EXIF says upright (`exif_upright`).
+    let orientation = decoder.orientation().unwrap_or(Orientation::NoTransforms);
+    let mut img = DynamicImage::from_decoder(decoder).map_err(corrupt)?;
+    img.apply_orientation(orientation);
     Ok(from_dynamic(img))
+}
+
+/// Sets the Orientation tag of an EXIF block (a TIFF structure) to 1, upright, in place; a
+/// block without one, or one that does not parse, is left as it is.
+pub fn exif_upright(exif: &mut [u8]) {
+    let big = match exif.get(..4) {
+        Some(b"MM\0*") => true,
+        Some(b"II*\0") => false,
+        _ => return,
+    };
+    let u16_at = |b: &[u8], i: usize| {
+        b.get(i..i + 2).map(|v| {
+            let v = [v[0], v[1]];
+            if big {
+                u16::from_be_bytes(v)
+            } else {
+                u16::from_le_bytes(v)
+            }
+        })
+    };
+    let Some(ifd) = exif.get(4..8).map(|v| {
+        let v = [v[0], v[1], v[2], v[3]];
+        (if big {
+            u32::from_be_bytes(v)
+        } else {
+            u32::from_le_bytes(v)
+        }) as usize
+    }) else {
+        return;
+    };
+    let Some(entries) = u16_at(exif, ifd) else {
+        return;
+    };
+    for k in 0..entries as usize {
+        let e = ifd + 2 + 12 * k;
+        // Tag 0x0112 Orientation, type 3 SHORT, count 1: the value sits in the entry.
+        if u16_at(exif, e) == Some(0x0112) && u16_at(exif, e + 2) == Some(3) {
+            let one = if big {
+                1u16.to_be_bytes()
+            } else {
+                1u16.to_le_bytes()
+            };
+            if let Some(v) = exif.get_mut(e + 8..e + 10) {
+                v.copy_from_slice(&one);
+            }
+            return;
+        }
+    }
 }
 
 /// Decodes any supported file as 8-bit RGB (replayed frames).

@@ -12,18 +12,50 @@ fn fuse(args: &[&Path]) -> std::process::Output {
         .unwrap()
 }
 
-/// A minimal little-endian TIFF/EXIF block with one Make tag.
-fn exif_with_make(make: &str) -> Vec<u8> {
+/// A minimal little-endian TIFF/EXIF block with a Make tag and, if given, an Orientation.
+fn exif_with(make: &str, orientation: Option<u16>) -> Vec<u8> {
+    let entries = 1 + orientation.is_some() as u16;
+    let data_at = 8 + 2 + 12 * entries as u32 + 4;
     let mut v = b"II\x2a\x00\x08\x00\x00\x00".to_vec();
-    v.extend_from_slice(&1u16.to_le_bytes());
+    v.extend_from_slice(&entries.to_le_bytes());
     v.extend_from_slice(&0x010fu16.to_le_bytes());
     v.extend_from_slice(&2u16.to_le_bytes());
     v.extend_from_slice(&(make.len() as u32 + 1).to_le_bytes());
-    v.extend_from_slice(&26u32.to_le_bytes());
+    v.extend_from_slice(&data_at.to_le_bytes());
+    if let Some(o) = orientation {
+        v.extend_from_slice(&0x0112u16.to_le_bytes());
+        v.extend_from_slice(&3u16.to_le_bytes());
+        v.extend_from_slice(&1u32.to_le_bytes());
+        v.extend_from_slice(&(o as u32).to_le_bytes());
+    }
     v.extend_from_slice(&0u32.to_le_bytes());
     v.extend_from_slice(make.as_bytes());
     v.push(0);
     v
+}
+
+fn exif_with_make(make: &str) -> Vec<u8> {
+    exif_with(make, None)
+}
+
+fn jpeg_with_exif(img: &image::RgbImage, exif: Vec<u8>) -> Vec<u8> {
+    let mut buf = std::io::Cursor::new(Vec::new());
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, 95)
+        .encode_image(img)
+        .unwrap();
+    let mut jpeg = Jpeg::from_bytes(Bytes::from(buf.into_inner())).unwrap();
+    jpeg.set_exif(Some(Bytes::from(exif)));
+    jpeg.encoder().bytes().to_vec()
+}
+
+fn orientation_of(path: &Path) -> Option<u32> {
+    let file = std::fs::File::open(path).unwrap();
+    let exif = exif::Reader::new()
+        .read_from_container(&mut std::io::BufReader::new(file))
+        .ok()?;
+    exif.get_field(exif::Tag::Orientation, exif::In::PRIMARY)?
+        .value
+        .get_uint(0)
 }
 
 fn make_of(path: &Path) -> Option<String> {
@@ -99,4 +131,172 @@ fn sixteen_bit_tiff_and_png_stay_sixteen_bit() {
         assert_eq!(img.color(), image::ColorType::Rgb16, "{}", out.display());
         assert_eq!((img.width(), img.height()), (40, 30));
     }
+}
+
+/// A portrait shot stored as landscape pixels with EXIF orientation 6 (turn 90° clockwise) is
+/// fused upright, and the output's EXIF (the reference's Make kept) says upright.
+#[test]
+fn exif_orientation_is_applied_and_the_output_says_upright() {
+    let dir = tempfile::tempdir().unwrap();
+    let stored = image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, 90])
+    });
+    let frames: Vec<_> = (0..3)
+        .map(|i| {
+            let p = dir.path().join(format!("f{i}.jpg"));
+            std::fs::write(
+                &p,
+                jpeg_with_exif(&stored, exif_with(&format!("frame{i}"), Some(6))),
+            )
+            .unwrap();
+            p
+        })
+        .collect();
+    assert_eq!(orientation_of(&frames[1]), Some(6));
+    let out = dir.path().join("out.jpg");
+    let mut args: Vec<&Path> = vec![&out];
+    args.extend(frames.iter().map(|p| p.as_path()));
+    let o = fuse(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fused = image::open(&out).unwrap().into_rgb8();
+    assert_eq!(fused.dimensions(), (48, 64), "turned upright");
+    let upright = image::imageops::rotate90(&stored);
+    let diff: f64 = fused
+        .as_raw()
+        .iter()
+        .zip(upright.as_raw())
+        .map(|(a, b)| a.abs_diff(*b) as f64)
+        .sum::<f64>()
+        / fused.as_raw().len() as f64;
+    assert!(
+        diff < 4.0,
+        "mean difference from the upright frame {diff:.2}"
+    );
+    assert_eq!(orientation_of(&out), Some(1));
+    assert_eq!(make_of(&out).as_deref(), Some("frame1"));
+}
+
+/// A baseline JPEG with four components (Adobe CMYK, stored inverted as Photoshop writes it) of
+/// flat 8×8 blocks: each block is its DC coefficient alone, so no DCT is needed to write it.
+fn cmyk_jpeg(bw: usize, bh: usize, color: impl Fn(usize, usize) -> [u8; 4]) -> Vec<u8> {
+    let (w, h) = ((bw * 8) as u16, (bh * 8) as u16);
+    let mut v = vec![0xFF, 0xD8];
+    let segment = |v: &mut Vec<u8>, marker: u8, body: &[u8]| {
+        v.extend_from_slice(&[0xFF, marker]);
+        v.extend_from_slice(&(body.len() as u16 + 2).to_be_bytes());
+        v.extend_from_slice(body);
+    };
+    segment(&mut v, 0xEE, b"Adobe\x00\x64\x00\x00\x00\x00\x00");
+    segment(&mut v, 0xDB, &[[0u8].as_slice(), &[1u8; 64]].concat());
+    let mut sof = vec![8];
+    sof.extend_from_slice(&h.to_be_bytes());
+    sof.extend_from_slice(&w.to_be_bytes());
+    sof.push(4);
+    for id in 1..=4 {
+        sof.extend_from_slice(&[id, 0x11, 0]);
+    }
+    segment(&mut v, 0xC0, &sof);
+    // The standard luminance DC table; an AC table with the end-of-block code alone ("0").
+    let dc_bits = [0u8, 1, 5, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0];
+    let dc_vals: Vec<u8> = (0..12).collect();
+    segment(&mut v, 0xC4, &[&[0x00][..], &dc_bits, &dc_vals].concat());
+    let mut ac_bits = [0u8; 16];
+    ac_bits[0] = 1;
+    segment(&mut v, 0xC4, &[&[0x10][..], &ac_bits, &[0x00]].concat());
+    segment(&mut v, 0xDA, &[4, 1, 0, 2, 0, 3, 0, 4, 0, 0, 63, 0]);
+    // Canonical codes of the DC table: (code, length) per category.
+    let mut codes = Vec::new();
+    let mut code = 0u32;
+    for (len, &n) in dc_bits.iter().enumerate() {
+        for _ in 0..n {
+            codes.push((code, len as u32 + 1));
+            code += 1;
+        }
+        code <<= 1;
+    }
+    let (mut acc, mut nbits, mut data) = (0u64, 0u32, Vec::new());
+    let mut put = |bits: u32, len: u32, data: &mut Vec<u8>| {
+        acc = (acc << len) | bits as u64;
+        nbits += len;
+        while nbits >= 8 {
+            let byte = (acc >> (nbits - 8)) as u8;
+            data.push(byte);
+            if byte == 0xFF {
+                data.push(0);
+            }
+            nbits -= 8;
+        }
+    };
+    let mut pred = [0i32; 4];
+    for by in 0..bh {
+        for bx in 0..bw {
+            let c = color(bx, by);
+            for k in 0..4 {
+                let dc = 8 * (c[k] as i32 - 128);
+                let diff = dc - pred[k];
+                pred[k] = dc;
+                let cat = 32 - diff.unsigned_abs().leading_zeros();
+                let (code, len) = codes[cat as usize];
+                put(code, len, &mut data);
+                if cat > 0 {
+                    let bits = if diff < 0 {
+                        diff + (1 << cat) - 1
+                    } else {
+                        diff
+                    };
+                    put(bits as u32, cat, &mut data);
+                }
+                put(0, 1, &mut data);
+            }
+        }
+    }
+    put(0x7F, 7, &mut data);
+    v.extend_from_slice(&data[..]);
+    v.extend_from_slice(&[0xFF, 0xD9]);
+    v
+}
+
+/// CMYK JPEGs (print workflows, some scanners) become RGB: R = C·K/255 of the stored,
+/// inverted inks, and a stack of them fuses.
+#[test]
+fn cmyk_jpeg_is_read_as_rgb_and_fuses() {
+    let dir = tempfile::tempdir().unwrap();
+    let ink = |bx: usize, by: usize, i: usize| -> [u8; 4] {
+        [
+            (40 + bx * 30) as u8,
+            (200 - by * 40) as u8,
+            (90 + i * 20) as u8,
+            230,
+        ]
+    };
+    let frames: Vec<_> = (0..3)
+        .map(|i| {
+            let p = dir.path().join(format!("c{i}.jpg"));
+            std::fs::write(&p, cmyk_jpeg(6, 4, |bx, by| ink(bx, by, i))).unwrap();
+            p
+        })
+        .collect();
+    let img = match focusd::imageio::load(&frames[0]).unwrap() {
+        focusd::imageio::Decoded::U8(i) => i,
+        focusd::imageio::Decoded::U16(_) => panic!("8-bit expected"),
+    };
+    assert_eq!((img.width, img.height, img.channels), (48, 32, 3));
+    for (bx, by) in [(0, 0), (5, 0), (2, 3)] {
+        let c = ink(bx, by, 0);
+        let (x, y) = (bx * 8 + 4, by * 8 + 4);
+        for ch in 0..3 {
+            let want = c[ch] as f32 * c[3] as f32 / 255.0;
+            let got = img.at(x, y, ch) as f32;
+            assert!(
+                (got - want).abs() <= 2.0,
+                "block ({bx},{by}) channel {ch}: {got} vs {want}"
+            );
+        }
+    }
+    let out = dir.path().join("out.png");
+    let mut args: Vec<&Path> = vec![&out];
+    args.extend(frames.iter().map(|p| p.as_path()));
+    let o = fuse(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(image::open(&out).unwrap().color(), image::ColorType::Rgb8);
 }
