@@ -348,9 +348,7 @@ fn write_bundle(
     quality: u8,
 ) -> Result<()> {
     let (takes, imu) = bundle::plan(p.planes, shakes, p.seed);
-    let io_err =
-        |e: std::io::Error| anyhow::anyhow!("{}: cannot write the bundle: {e}", dir.display());
-    let mut w = BundleWriter::create(dir, bundle::LENS_RANGE).map_err(io_err)?;
+    let mut w = BundleWriter::create(dir, bundle::LENS_RANGE)?;
     for t in &takes {
         if t.shaken {
             let smeared = bundle::smear(&stack.frames[t.plane], SHAKE_SMEAR_PX);
@@ -359,9 +357,10 @@ fn write_bundle(
         } else {
             w.add_existing(t.plane, t.lens, t.exposure, &names[t.plane])
         }
-        .map_err(io_err)?;
+        .with_context(|| format!("{}: cannot write the bundle", dir.display()))?;
     }
-    w.finish(&imu).map_err(io_err)
+    w.finish(&imu)
+        .with_context(|| format!("{}: cannot write the bundle", dir.display()))
 }
 
 /// Length of a shaken take's smear, pixels.

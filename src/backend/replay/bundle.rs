@@ -4,6 +4,8 @@
 //! come from another machine.
 
 use crate::capture::{ImuSample, Nanos, Sensor};
+use crate::imageio::write_atomic;
+use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::{Component, Path, PathBuf};
@@ -237,8 +239,9 @@ pub struct BundleWriter {
 }
 
 impl BundleWriter {
-    pub fn create(dir: &Path, lens_range: (i32, i32)) -> std::io::Result<BundleWriter> {
-        std::fs::create_dir_all(dir)?;
+    pub fn create(dir: &Path, lens_range: (i32, i32)) -> anyhow::Result<BundleWriter> {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
         Ok(BundleWriter {
             dir: dir.to_path_buf(),
             manifest: Manifest {
@@ -258,7 +261,7 @@ impl BundleWriter {
         exposure: (Nanos, Nanos),
         extension: &str,
         bytes: &[u8],
-    ) -> std::io::Result<()> {
+    ) -> anyhow::Result<()> {
         let take = self
             .manifest
             .takes
@@ -284,12 +287,9 @@ impl BundleWriter {
         lens: i32,
         exposure: (Nanos, Nanos),
         file: &str,
-    ) -> std::io::Result<()> {
+    ) -> anyhow::Result<()> {
         if !is_plain_relative(file) || !self.dir.join(file).is_file() {
-            return Err(std::io::Error::other(format!(
-                "{file}: not a file in {}",
-                self.dir.display()
-            )));
+            anyhow::bail!("{file}: not a file in {}", self.dir.display());
         }
         self.manifest.takes.push(TakeEntry {
             plane,
@@ -301,7 +301,7 @@ impl BundleWriter {
         Ok(())
     }
 
-    pub fn finish(self, imu: &[ImuSample]) -> std::io::Result<()> {
+    pub fn finish(self, imu: &[ImuSample]) -> anyhow::Result<()> {
         let mut csv = String::from("t_ns,sensor,x,y,z\n");
         for s in imu {
             let name = match s.sensor {
@@ -312,16 +312,10 @@ impl BundleWriter {
             writeln!(csv, "{},{name},{x},{y},{z}", s.t).expect("writing to a String");
         }
         write_atomic(&self.dir.join("imu.csv"), csv.as_bytes())?;
-        let toml = toml::to_string(&self.manifest).map_err(std::io::Error::other)?;
+        let toml = toml::to_string(&self.manifest).context("encoding bundle.toml")?;
         let text = format!("# focusd replay bundle: see sim-data/README.md\n{toml}");
         write_atomic(&self.dir.join("bundle.toml"), text.as_bytes())
     }
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes)?;
-    std::fs::rename(&tmp, path)
 }
 
 #[cfg(test)]
