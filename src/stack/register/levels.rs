@@ -15,13 +15,18 @@ impl Levels {
     /// Levels `first..=last` of `full`'s pyramid, stopping early if a level gets tiny.
     pub fn build(full: &Plane, first: usize, last: usize) -> Levels {
         let mut planes = Vec::with_capacity(last + 1 - first);
+        if first == 0 {
+            planes.push(full.clone());
+        }
+        // Level k is reduced from level k − 1 without copying the full-resolution plane, which
+        // is most of the memory of a frame being registered.
         let mut cur: Option<Plane> = None;
-        for k in 0..=last {
-            let next = match &cur {
-                None => full.clone(),
-                Some(p) if p.width.min(p.height) < 16 => break,
-                Some(p) => reduce(p),
-            };
+        for k in 1..=last {
+            let src = cur.as_ref().unwrap_or(full);
+            if src.width.min(src.height) < 16 {
+                break;
+            }
+            let next = reduce(src);
             if k >= first {
                 planes.push(next.clone());
             }
