@@ -54,9 +54,9 @@ pub struct FuseArgs {
     /// Seam weight λ against the focus cost, 0.01..=10; higher gives fewer, smoother seams.
     #[arg(long, default_value_t = 0.3)]
     pub lambda: f32,
-    /// Memory budget in MiB, 64..=65536: a tighter one composes in smaller bands and registers
-    /// fewer frames at once (slower, same image); below what the stack needs at least, it fuses
-    /// anyway in the smallest bands and says so.
+    /// Memory budget in MiB, 64..=65536: a tighter one composes and labels in bands of rows and
+    /// registers fewer frames at once (slower, same image); below what the stack needs at least,
+    /// it fuses anyway in the smallest bands and says so.
     #[arg(long, value_name = "MIB", default_value_t = (DEFAULT_BUDGET >> 20) as u32,
           value_parser = clap::value_parser!(u32).range(64..=65536))]
     pub memory: u32,

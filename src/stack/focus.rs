@@ -24,6 +24,12 @@ impl Default for FocusParams {
     }
 }
 
+/// Rows beyond a pixel that its amplitude depends on: the wider DoG blur, then the window.
+pub fn focus_reach(p: &FocusParams) -> usize {
+    let r = |sigma: f32| gaussian_half(sigma).len() - 1;
+    r(p.sigma_fine).max(r(p.sigma_coarse)) + r(p.window)
+}
+
 /// Amplitudes are stored as u16 with this full scale (luma is 0..=1, a DoG amplitude ≲ 0.5),
 /// which halves memory against f32 and keeps 1.5e-5 resolution, far below sensor noise.
 pub const AMP_SCALE: f32 = 65535.0;

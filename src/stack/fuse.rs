@@ -187,6 +187,7 @@ pub fn fuse<T: Sample>(
                 coverage,
                 reference as u8,
                 &params.graphcut,
+                plan.label_rows,
                 progress,
             );
             lap("labels", &mut timings);

@@ -7,11 +7,14 @@
 
 use super::align::Coverage;
 use super::expansion::{expand, Costs, Grid};
-use super::focus::{downsample_amplitude, focus_amplitude, max_amplitude, FocusParams, AMP_SCALE};
+use super::focus::{
+    downsample_amplitude, focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE,
+};
 use super::image::{Image, Sample};
 use super::maxflow::GridMaxflow;
 use super::Progress;
 use rayon::prelude::*;
+use std::ops::Range;
 
 #[derive(Clone, Debug)]
 pub struct GraphCutParams {
@@ -44,12 +47,105 @@ impl Default for GraphCutParams {
     }
 }
 
+/// Focus amplitudes of every frame on rows `r0..` of a level, and their maximum per pixel.
+struct Amps {
+    /// Level pixel index of the first one held.
+    offset: usize,
+    per_frame: Vec<Vec<u16>>,
+    max: Vec<u16>,
+}
+
+impl Amps {
+    fn new(offset: usize, per_frame: Vec<Vec<u16>>) -> Self {
+        let max = max_amplitude(&per_frame);
+        Self {
+            offset,
+            per_frame,
+            max,
+        }
+    }
+
+    /// Every frame's amplitudes on rows `rows` of the full-resolution level, each computed on
+    /// those rows plus the focus measure's reach, so they equal the whole image's exactly.
+    fn for_rows<T: Sample>(
+        frames: &[Image<T>],
+        coverage: &[Coverage],
+        p: &FocusParams,
+        rows: Range<usize>,
+    ) -> Self {
+        let per_frame = frames
+            .iter()
+            .zip(coverage)
+            .map(|(f, cov)| amplitude_rows(f, cov, p, rows.clone()))
+            .collect();
+        Self::new(rows.start * frames[0].width, per_frame)
+    }
+}
+
+/// One frame's focus amplitudes on rows `rows`, zero where it has no content of its own: the
+/// graph cut steers away, and `keep_covered` settles the flat areas where every frame scores
+/// zero.
+fn amplitude_rows<T: Sample>(
+    frame: &Image<T>,
+    cov: &Coverage,
+    p: &FocusParams,
+    rows: Range<usize>,
+) -> Vec<u16> {
+    let (w, h) = (frame.width, frame.height);
+    let reach = focus_reach(p);
+    let ext = rows.start.saturating_sub(reach)..(rows.end + reach).min(h);
+    let mut a = focus_amplitude(&frame.luma_rows(ext.clone()), p);
+    a.drain(..(rows.start - ext.start) * w);
+    a.truncate(rows.len() * w);
+    a.par_chunks_mut(w)
+        .zip(&cov.spans[rows])
+        .for_each(|(row, &(lo, hi))| {
+            row[..lo as usize].fill(0);
+            row[(hi as usize).max(lo as usize)..].fill(0);
+        });
+    a
+}
+
+/// Where a solve gets its focus amplitudes: held whole, or recomputed for each band of rows
+/// (a memory budget's choice: the whole stack's take 2 bytes a pixel per frame).
+enum Focus<'a, T> {
+    Whole(&'a Amps),
+    Bands {
+        frames: &'a [Image<T>],
+        coverage: &'a [Coverage],
+        params: &'a FocusParams,
+        rows: usize,
+    },
+}
+
+impl<T: Sample> Focus<'_, T> {
+    /// Most rows held at once.
+    fn rows(&self) -> usize {
+        match self {
+            Focus::Whole(_) => usize::MAX,
+            Focus::Bands { rows, .. } => *rows,
+        }
+    }
+
+    /// Runs `f` on the amplitudes of (at least) rows `rows`.
+    fn with<R>(&self, rows: Range<usize>, f: impl FnOnce(&Amps) -> R) -> R {
+        match self {
+            Focus::Whole(a) => f(a),
+            Focus::Bands {
+                frames,
+                coverage,
+                params,
+                ..
+            } => f(&Amps::for_rows(frames, coverage, params, rows)),
+        }
+    }
+}
+
 /// One resolution level of the labelling problem.
 struct Level<'a, T> {
     channels: usize,
     colors: Vec<&'a [T]>,
-    amps: &'a [Vec<u16>],
-    max_amp: &'a [u16],
+    amps: &'a Amps,
     /// Integer units per unit of focus cost: channels·MAX/λ, so seam costs stay exact integers.
     unary_scale: f32,
     eps: f32,
@@ -57,20 +153,13 @@ struct Level<'a, T> {
 }
 
 impl<'a, T: Sample> Level<'a, T> {
-    fn new(
-        images: &'a [Image<T>],
-        amps: &'a [Vec<u16>],
-        max_amp: &'a [u16],
-        lambda: f32,
-        p: &GraphCutParams,
-    ) -> Self {
+    fn new(images: &'a [Image<T>], amps: &'a Amps, lambda: f32, p: &GraphCutParams) -> Self {
         let channels = images[0].channels;
         let full = channels as f32 * T::MAX;
         Self {
             channels,
             colors: images.iter().map(|i| i.data.as_slice()).collect(),
             amps,
-            max_amp,
             unary_scale: full / lambda,
             eps: p.noise_floor * AMP_SCALE,
             kappa: (p.kappa * full).round() as i32,
@@ -78,9 +167,10 @@ impl<'a, T: Sample> Level<'a, T> {
     }
 
     fn sharpest(&self, p: usize) -> u8 {
+        let (a, i) = (&self.amps.per_frame, p - self.amps.offset);
         let mut best = 0;
-        for l in 1..self.amps.len() {
-            if self.amps[l][p] > self.amps[best][p] {
+        for l in 1..a.len() {
+            if a[l][i] > a[best][i] {
                 best = l;
             }
         }
@@ -90,8 +180,9 @@ impl<'a, T: Sample> Level<'a, T> {
     /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
     #[inline]
     fn unary(&self, p: usize, l: u8) -> i32 {
-        let m = self.max_amp[p] as f32;
-        let a = self.amps[l as usize][p] as f32;
+        let i = p - self.amps.offset;
+        let m = self.amps.max[i] as f32;
+        let a = self.amps.per_frame[l as usize][i] as f32;
         ((m - a) / (m + self.eps) * self.unary_scale) as i32
     }
 }
@@ -210,48 +301,53 @@ fn downsample_image<T: Sample>(img: &Image<T>, f: usize) -> Image<T> {
 
 /// Labels each pixel of an aligned stack with the index of the frame to copy it from. A frame is
 /// never chosen where its `coverage` misses; `fallback` must cover every pixel (the reference).
+/// With `band_rows` below the height, the full-resolution focus amplitudes are never held
+/// whole but recomputed for bands of that many rows: the same labels, in less memory.
 pub fn label_stack<T: Sample>(
     frames: &[Image<T>],
     coverage: &[Coverage],
     fallback: u8,
     p: &GraphCutParams,
+    band_rows: usize,
     progress: &dyn Progress,
 ) -> Vec<u8> {
     let (w, h) = (frames[0].width, frames[0].height);
-    progress.stage("focus", frames.len());
-    let amps: Vec<Vec<u16>> = frames
-        .iter()
-        .zip(coverage)
-        .map(|(f, cov)| {
-            let mut a = focus_amplitude(&f.luma(), &p.focus);
-            // No focus where the frame has no content of its own: the graph cut steers away,
-            // and `keep_covered` settles the flat areas where every frame scores zero.
-            a.par_chunks_mut(w)
-                .zip(&cov.spans)
-                .for_each(|(row, &(lo, hi))| {
-                    row[..lo as usize].fill(0);
-                    row[(hi as usize).max(lo as usize)..].fill(0);
-                });
-            progress.advance(1);
-            a
-        })
-        .collect();
-    let max_amp = max_amplitude(&amps);
     let f = coarse_factor(w * h, p.coarse_pixels);
-    let full = Level::new(frames, &amps, &max_amp, p.lambda, p);
+    let whole = band_rows >= h || f == 1;
+    progress.stage("focus", frames.len());
+    let (mut kept, mut camps) = (Vec::new(), Vec::new());
+    for (frame, cov) in frames.iter().zip(coverage) {
+        let a = amplitude_rows(frame, cov, &p.focus, 0..h);
+        if f > 1 {
+            camps.push(downsample_amplitude(&a, w, h, f));
+        }
+        if whole {
+            kept.push(a);
+        }
+        progress.advance(1);
+    }
+    let held = whole.then(|| Amps::new(0, kept));
+    let focus = match &held {
+        Some(a) => Focus::Whole(a),
+        None => Focus::Bands {
+            frames,
+            coverage,
+            params: &p.focus,
+            rows: band_rows,
+        },
+    };
     if f == 1 {
-        let mut labels: Vec<u8> = (0..w * h).map(|i| full.sharpest(i)).collect();
-        solve_tiled(
-            w,
-            h,
-            &mut labels,
-            None,
-            &full,
-            256,
-            2,
-            p.max_cycles,
-            progress,
-        );
+        let mut labels = focus.with(0..h, |a| {
+            let full = Level::new(frames, a, p.lambda, p);
+            (0..w * h).map(|i| full.sharpest(i)).collect::<Vec<u8>>()
+        });
+        let solve = Solve {
+            frames,
+            focus: &focus,
+            lambda: p.lambda,
+            params: p,
+        };
+        solve.tiled(w, h, &mut labels, None, 256, 2, progress);
         keep_covered(&mut labels, w, coverage, fallback);
         return labels;
     }
@@ -259,24 +355,16 @@ pub fn label_stack<T: Sample>(
     // Coarse level: seam weight λ/f keeps the energy's balance (areas shrink by f², seams by f).
     let small: Vec<Image<T>> = frames.par_iter().map(|i| downsample_image(i, f)).collect();
     let (cw, ch) = (small[0].width, small[0].height);
-    let camps: Vec<Vec<u16>> = amps
-        .iter()
-        .map(|a| downsample_amplitude(a, w, h, f))
-        .collect();
-    let cmax = max_amplitude(&camps);
-    let coarse = Level::new(&small, &camps, &cmax, p.lambda / f as f32, p);
+    let camps = Amps::new(0, camps);
+    let coarse = Level::new(&small, &camps, p.lambda / f as f32, p);
     let mut clabels: Vec<u8> = (0..cw * ch).map(|i| coarse.sharpest(i)).collect();
-    solve_tiled(
-        cw,
-        ch,
-        &mut clabels,
-        None,
-        &coarse,
-        64,
-        2,
-        p.max_cycles,
-        progress,
-    );
+    let solve = Solve {
+        frames: &small,
+        focus: &Focus::<T>::Whole(&camps),
+        lambda: p.lambda / f as f32,
+        params: p,
+    };
+    solve.tiled(cw, ch, &mut clabels, None, 64, 2, progress);
 
     // Full resolution: upsample, then free a band around coarse boundaries and the pixels where
     // the coarse label is clearly not the sharp frame (detail finer than a coarse pixel).
@@ -284,31 +372,34 @@ pub fn label_stack<T: Sample>(
     let mut labels = vec![0u8; w * h];
     let mut free = vec![false; w * h];
     let texture = (4.0 * p.noise_floor * AMP_SCALE) as u16;
-    labels
-        .par_chunks_mut(w)
-        .zip(free.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (lrow, frow))| {
-            for x in 0..w {
-                let c = (y / f) * cw + x / f;
-                let l = clabels[c];
-                lrow[x] = l;
-                let i = y * w + x;
-                let missed = max_amp[i] > texture && 2 * amps[l as usize][i] < max_amp[i];
-                frow[x] = boundary[c] || missed;
-            }
+    let step = focus.rows().min(h);
+    for y0 in (0..h).step_by(step) {
+        let rows = y0..(y0 + step).min(h);
+        focus.with(rows.clone(), |a| {
+            labels[rows.start * w..rows.end * w]
+                .par_chunks_mut(w)
+                .zip(free[rows.start * w..rows.end * w].par_chunks_mut(w))
+                .zip(rows.clone())
+                .for_each(|((lrow, frow), y)| {
+                    for x in 0..w {
+                        let c = (y / f) * cw + x / f;
+                        let l = clabels[c];
+                        lrow[x] = l;
+                        let i = y * w + x - a.offset;
+                        let missed =
+                            a.max[i] > texture && 2 * a.per_frame[l as usize][i] < a.max[i];
+                        frow[x] = boundary[c] || missed;
+                    }
+                });
         });
-    solve_tiled(
-        w,
-        h,
-        &mut labels,
-        Some(&free),
-        &full,
-        64,
-        2,
-        p.max_cycles,
-        progress,
-    );
+    }
+    let solve = Solve {
+        frames,
+        focus: &focus,
+        lambda: p.lambda,
+        params: p,
+    };
+    solve.tiled(w, h, &mut labels, Some(&free), 64, 2, progress);
     keep_covered(&mut labels, w, coverage, fallback);
     labels
 }
@@ -337,85 +428,113 @@ fn coarse_boundaries(w: usize, h: usize, labels: &[u8]) -> Vec<bool> {
         .collect()
 }
 
-/// Runs α-expansion over tiles in parallel, `passes` times with the tile grid shifted by half a
-/// tile between passes so no tile border stays fixed.
-#[allow(clippy::too_many_arguments)]
-fn solve_tiled<T: Sample>(
-    w: usize,
-    h: usize,
-    labels: &mut [u8],
-    free: Option<&[bool]>,
-    level: &Level<T>,
-    tile: usize,
-    passes: usize,
-    max_cycles: usize,
-    progress: &dyn Progress,
-) {
-    let windows_for = |offset: usize| -> Vec<Window> {
-        let starts = |n: usize| -> Vec<usize> {
-            let mut s = vec![0];
-            let mut v = if offset > 0 && offset < n {
-                offset
-            } else {
-                tile
+/// One level's problem: its frames' colours, where its focus amplitudes come from, λ.
+struct Solve<'a, T> {
+    frames: &'a [Image<T>],
+    focus: &'a Focus<'a, T>,
+    lambda: f32,
+    params: &'a GraphCutParams,
+}
+
+impl<T: Sample> Solve<'_, T> {
+    /// Runs α-expansion over tiles in parallel, `passes` times with the tile grid shifted by
+    /// half a tile between passes so no tile border stays fixed. With banded focus amplitudes,
+    /// the windows of a pass are solved a band of rows at a time; every window of a pass still
+    /// sees the labels as they were before the pass, so the bands change nothing.
+    #[allow(clippy::too_many_arguments)]
+    fn tiled(
+        &self,
+        w: usize,
+        h: usize,
+        labels: &mut [u8],
+        free: Option<&[bool]>,
+        tile: usize,
+        passes: usize,
+        progress: &dyn Progress,
+    ) {
+        let windows_for = |offset: usize| -> Vec<Window> {
+            let starts = |n: usize| -> Vec<usize> {
+                let mut s = vec![0];
+                let mut v = if offset > 0 && offset < n {
+                    offset
+                } else {
+                    tile
+                };
+                while v < n {
+                    s.push(v);
+                    v += tile;
+                }
+                s
             };
-            while v < n {
-                s.push(v);
-                v += tile;
+            let (xs, ys) = (starts(w), starts(h));
+            let mut out = Vec::new();
+            for (j, &y0) in ys.iter().enumerate() {
+                let y1 = ys.get(j + 1).copied().unwrap_or(h);
+                for (i, &x0) in xs.iter().enumerate() {
+                    let x1 = xs.get(i + 1).copied().unwrap_or(w);
+                    out.push(Window {
+                        x0,
+                        y0,
+                        w: x1 - x0,
+                        h: y1 - y0,
+                    });
+                }
             }
-            s
+            out
         };
-        let (xs, ys) = (starts(w), starts(h));
-        let mut out = Vec::new();
-        for (j, &y0) in ys.iter().enumerate() {
-            let y1 = ys.get(j + 1).copied().unwrap_or(h);
-            for (i, &x0) in xs.iter().enumerate() {
-                let x1 = xs.get(i + 1).copied().unwrap_or(w);
-                out.push(Window {
-                    x0,
-                    y0,
-                    w: x1 - x0,
-                    h: y1 - y0,
-                });
-            }
-        }
-        out
-    };
-    let plans: Vec<Vec<Window>> = (0..passes)
-        .map(|k| windows_for(if k % 2 == 1 { tile / 2 } else { 0 }))
-        .collect();
-    progress.stage("labels", plans.iter().map(Vec::len).sum());
-    // After the first pass each tile is optimal for its fixed borders, so later passes only
-    // re-solve the strips along the first pass's tile borders.
-    let reach = tile / 4;
-    let near_border = |v: usize| v % tile < reach || v % tile >= tile - reach;
-    let strips: Vec<bool> = (0..w * h)
-        .into_par_iter()
-        .map(|p| free.is_none_or(|f| f[p]) && (near_border(p % w) || near_border(p / w)))
-        .collect();
-    for (k, windows) in plans.into_iter().enumerate() {
-        let results: Vec<(Window, Vec<u8>)> = {
+        let plans: Vec<Vec<Window>> = (0..passes)
+            .map(|k| windows_for(if k % 2 == 1 { tile / 2 } else { 0 }))
+            .collect();
+        progress.stage("labels", plans.iter().map(Vec::len).sum());
+        // After the first pass each tile is optimal for its fixed borders, so later passes
+        // only re-solve the strips along the first pass's tile borders.
+        let reach = tile / 4;
+        let near_border = |v: usize| v % tile < reach || v % tile >= tile - reach;
+        let strips: Vec<bool> = (0..w * h)
+            .into_par_iter()
+            .map(|p| free.is_none_or(|f| f[p]) && (near_border(p % w) || near_border(p / w)))
+            .collect();
+        for (k, windows) in plans.into_iter().enumerate() {
+            let mut results: Vec<(Window, Vec<u8>)> = Vec::new();
             let grid = Grid {
                 width: w,
                 height: h,
                 labels,
                 free: if k == 0 { free } else { Some(&strips) },
             };
-            windows
-                .par_iter()
-                .map_init(GridMaxflow::new, |solver, &win| {
-                    let r = candidates(&grid, win, level)
-                        .map(|c| (win, solve_window(&grid, win, &c, level, max_cycles, solver)));
-                    progress.advance(1);
-                    r
-                })
-                .flatten()
-                .collect()
-        };
-        for (win, out) in results {
-            for y in 0..win.h {
-                let s = (win.y0 + y) * w + win.x0;
-                labels[s..s + win.w].copy_from_slice(&out[y * win.w..(y + 1) * win.w]);
+            // Windows come row of tiles by row of tiles: a band is as many rows of them as fit.
+            let mut rest = &windows[..];
+            while let Some(first) = rest.first() {
+                let limit = first.y0.saturating_add(self.focus.rows());
+                let n = rest
+                    .iter()
+                    .position(|v| v.y0 + v.h > limit.max(first.y0 + v.h))
+                    .unwrap_or(rest.len());
+                let (band, next) = rest.split_at(n.max(1));
+                rest = next;
+                let y1 = band.iter().map(|v| v.y0 + v.h).max().unwrap_or(h);
+                let rows = first.y0.saturating_sub(1)..(y1 + 1).min(h);
+                self.focus.with(rows, |amps| {
+                    let level = Level::new(self.frames, amps, self.lambda, self.params);
+                    let cycles = self.params.max_cycles;
+                    results.par_extend(
+                        band.par_iter()
+                            .map_init(GridMaxflow::new, |solver, &win| {
+                                let r = candidates(&grid, win, &level).map(|c| {
+                                    (win, solve_window(&grid, win, &c, &level, cycles, solver))
+                                });
+                                progress.advance(1);
+                                r
+                            })
+                            .flatten(),
+                    );
+                });
+            }
+            for (win, out) in results {
+                for y in 0..win.h {
+                    let s = (win.y0 + y) * w + win.x0;
+                    labels[s..s + win.w].copy_from_slice(&out[y * win.w..(y + 1) * win.w]);
+                }
             }
         }
     }

@@ -112,18 +112,24 @@ impl<T: Sample> Image<T> {
 
     /// Luma (Rec. 601 weights) normalised to 0..=1: the signal every focus measure works on.
     pub fn luma(&self) -> Plane {
+        self.luma_rows(0..self.height)
+    }
+
+    /// The luma of rows `rows` only, as a plane of that many rows.
+    pub fn luma_rows(&self, rows: std::ops::Range<usize>) -> Plane {
         let scale = 1.0 / T::MAX;
+        let n = self.width * self.channels;
+        let samples = &self.data[rows.start * n..rows.end * n];
         let data = match self.channels {
-            1 => self.data.iter().map(|v| v.to_f32() * scale).collect(),
-            _ => self
-                .data
+            1 => samples.iter().map(|v| v.to_f32() * scale).collect(),
+            _ => samples
                 .chunks_exact(self.channels)
                 .map(|p| {
                     (0.299 * p[0].to_f32() + 0.587 * p[1].to_f32() + 0.114 * p[2].to_f32()) * scale
                 })
                 .collect(),
         };
-        Plane::from_vec(self.width, self.height, 1, data)
+        Plane::from_vec(self.width, rows.len(), 1, data)
     }
 
     /// Splits into f32 planes normalised to 0..=1, one per channel.

@@ -1,11 +1,11 @@
 //! What a fuse holds in memory, and how it is fitted to a budget.
 //!
-//! The frames, their focus maps and the label map are held whole for the whole fuse; what a
-//! budget shrinks is the rest: the compose works in row bands of the output (see
-//! `compose::bands`) and registration prepares fewer frames at once. Below what even the
-//! smallest bands need, the fuse still runs, in the smallest bands: a phone that swaps is
-//! slower, one whose job aborted has nothing. Estimates are in bytes and are checked against
-//! `/usr/bin/time -v` by `scripts/bench-memory`.
+//! The frames and the label map are held whole for the whole fuse; what a budget shrinks is the
+//! rest: the compose works in row bands of the output (see `compose::bands`), the graph cut's
+//! focus maps are recomputed per band of rows instead of held whole, and registration prepares
+//! fewer frames at once. Below what even the smallest bands need, the fuse still runs, in the
+//! smallest bands: a phone that swaps is slower, one whose job aborted has nothing. Estimates are
+//! in bytes and are checked against `/usr/bin/time -v` by `scripts/bench-memory`.
 
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
 use super::fuse::{FuseParams, Method};
@@ -13,6 +13,9 @@ use std::fmt;
 
 /// The default budget: a PinePhone has 2–3 GB shared with the phone's other work.
 pub const DEFAULT_BUDGET: usize = 512 << 20;
+
+/// Label bands are whole rows of the graph cut's 64-pixel tiles.
+const LABEL_GRID: usize = 64;
 
 /// Resident memory of the process before any frame: code, thread stacks, allocator.
 const RUNTIME: usize = 8 << 20;
@@ -34,6 +37,8 @@ pub struct Plan {
     pub budget: usize,
     /// Output rows composed at once (`usize::MAX`: the whole image in one band).
     pub band_rows: usize,
+    /// Rows whose focus amplitudes the labelling holds at once (`usize::MAX`: all of them).
+    pub label_rows: usize,
     /// Frames registered at once: one per thread, or fewer when the budget is tight.
     pub concurrent_frames: usize,
     /// Estimated peak of this plan, and of the leanest one (bands as tall as their margins, one
@@ -51,10 +56,13 @@ impl Plan {
 impl fmt::Display for Plan {
     fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
         let mib = |b: usize| b.div_ceil(1 << 20);
-        let bands = match self.band_rows {
+        let mut bands = match self.band_rows {
             usize::MAX => "whole-image compose".to_string(),
             r => format!("compose in bands of {r} rows"),
         };
+        if self.label_rows != usize::MAX {
+            bands += &format!(", focus maps in bands of {} rows", self.label_rows);
+        }
         if self.fits() {
             let (peak, budget) = (mib(self.peak), mib(self.budget));
             write!(f, "about {peak} MiB of the {budget} MiB budget ({bands})")
@@ -76,14 +84,33 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     let frames = s.frames * frame;
     let budget = p.memory;
     let room = budget.saturating_sub(RUNTIME);
-    // Each frame being prepared: its luma (4 bytes a pixel) and the first reduced levels.
-    let register = |k: usize| frames + k * px * 6;
+    // Each frame being prepared: its luma (4 bytes a pixel), its reduced levels and keypoint
+    // scale space (measured: 9.3 bytes a pixel in all at 3 MP).
+    let register = |k: usize| frames + k * px * 10;
     let warp = frames + 2 * frame + 4 * px;
-    // Focus amplitudes (u16 per frame), their maximum, the label, free and strip maps, and
-    // the luma of the frame being measured.
-    let labels = match p.method {
-        Method::GraphCut => frames + s.frames * 2 * px + 9 * px,
-        Method::Pyramid => 0,
+    // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps, and
+    // the luma of the frame being measured; in bands, the amplitudes of a band's rows and, while
+    // each frame's are measured for the coarse level, one frame's at full size.
+    let maps = 5 * px;
+    let labels_whole = frames + maps + (s.frames + 1) * 2 * px + 4 * px;
+    let labels_banded = |rows: usize| {
+        let band = (s.frames + 1) * 2 * (rows + 2) * s.width + 4 * (rows + 40) * s.width;
+        frames + maps + band.max(10 * px)
+    };
+    let graphcut = p.method == Method::GraphCut;
+    let label_rows = if !graphcut || labels_whole <= room {
+        usize::MAX
+    } else {
+        (1..s.height.div_ceil(LABEL_GRID))
+            .rev()
+            .map(|k| k * LABEL_GRID)
+            .find(|&r| labels_banded(r) <= room)
+            .unwrap_or(LABEL_GRID)
+    };
+    let labels = |rows: usize| match (graphcut, rows) {
+        (false, _) => 0,
+        (true, usize::MAX) => labels_whole,
+        (true, r) => labels_banded(r),
     };
     let levels = pyramid_levels(
         s.width,
@@ -112,19 +139,17 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     } else {
         (fit_rows / grid).max(least / grid) * grid
     };
-    let peak_of = |k: usize, rows: usize| {
-        RUNTIME
-            + [register(k), warp, labels, compose(rows)]
-                .into_iter()
-                .max()
-                .unwrap_or(0)
+    let peak_of = |k: usize, label_rows: usize, rows: usize| {
+        let stages = [register(k), warp, labels(label_rows), compose(rows)];
+        RUNTIME + stages.into_iter().max().unwrap_or(0)
     };
     Plan {
         budget,
         band_rows,
+        label_rows,
         concurrent_frames: concurrent,
-        peak: peak_of(concurrent, band_rows),
-        floor: peak_of(1, least),
+        peak: peak_of(concurrent, label_rows, band_rows),
+        floor: peak_of(1, LABEL_GRID, least),
     }
 }
 
@@ -169,7 +194,7 @@ mod tests {
         let s = stack(15, 3000, 2000);
         let p = plan(&s, &params(100));
         assert!(!p.fits());
-        assert_eq!(p.band_rows, 128);
+        assert_eq!((p.band_rows, p.label_rows), (128, 64));
         assert_eq!(p.peak, p.floor);
         assert!(p.floor > 15 * 3000 * 2000 * 3, "the frames alone are more");
     }
