@@ -197,6 +197,10 @@ fn capture_replays_a_bundle_into_an_image_and_a_report() {
         assert!(r["timings_ms"][stage].as_f64().is_some(), "{stage}: {r}");
     }
     assert_eq!(r["output"], out.display().to_string());
+    assert_eq!(r["memory"]["budget_mib"], 512, "{r}");
+    assert_eq!(r["memory"]["within_budget"], true, "{r}");
+    let peak = r["memory"]["estimated_peak_mib"].as_u64().unwrap();
+    assert!(peak > 0 && peak <= 512, "{r}");
     // The fused image is close to the truth, and closer than a stack with the shaken take in it.
     let truth = load(&bundle_dir("shaken").join("truth.png"));
     let fused = psnr(&load(&out), &truth, 0);

@@ -79,6 +79,11 @@ pub fn run(a: &CaptureArgs) -> Result<()> {
     bar.finish();
     let report = report?;
     print_planes(&report.planes);
+    let m = &report.memory;
+    match m.within_budget {
+        true => eprintln!("  memory  {}", m.plan),
+        false => eprintln!("  warning: {}; raise [fuse] memory_mb", m.plan),
+    }
     eprintln!(
         "focusd: captured {} planes, fused into {}",
         report.planes.len(),

@@ -11,6 +11,7 @@ use crate::backend::v4l2;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
 use crate::capture::{Camera, CaptureError, Clock, Imu, Take};
 use crate::stack::fuse::{fuse, FuseError};
+use crate::stack::memory::Plan;
 use crate::stack::Progress;
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -109,7 +110,31 @@ pub struct Report {
     pub sweep_ms: f64,
     /// Wall time of `capture`, `register`, `fuse` and `save`, ms.
     pub timings_ms: BTreeMap<&'static str, f64>,
+    pub memory: MemoryReport,
     pub output: String,
+}
+
+/// How the fuse fitted its memory budget (`stack::memory::Plan`).
+#[derive(Clone, Debug, Serialize)]
+pub struct MemoryReport {
+    pub budget_mib: usize,
+    /// The plan's estimated peak, or what the stack needs at least when that is over budget.
+    pub estimated_peak_mib: usize,
+    pub within_budget: bool,
+    /// The plan in words.
+    pub plan: String,
+}
+
+impl From<&Plan> for MemoryReport {
+    fn from(p: &Plan) -> Self {
+        let mib = |b: usize| b.div_ceil(1 << 20);
+        Self {
+            budget_mib: mib(p.budget),
+            estimated_peak_mib: mib(if p.fits() { p.peak } else { p.floor }),
+            within_budget: p.fits(),
+            plan: p.to_string(),
+        }
+    }
 }
 
 /// Whether a job's error is a cancel rather than a failure.
@@ -170,6 +195,7 @@ pub fn run(
         planes,
         sweep_ms: (ended - started) as f64 * 1e-6,
         timings_ms: timings,
+        memory: MemoryReport::from(&fused.memory),
         output: output.display().to_string(),
     };
     if let Some(path) = report {
