@@ -72,18 +72,17 @@ struct Info {
 }
 
 impl Info {
-    fn control(&self, name: &str) -> Option<&Description> {
+    fn control(&self, name: &str) -> Result<&Description, String> {
         self.controls
             .iter()
             .find(|c| c.name.eq_ignore_ascii_case(name))
+            .ok_or_else(|| format!("vivid has no \"{name}\" control"))
     }
 }
 
 fn run(node: &Path) -> Check {
     let info = inspect(node)?;
-    let brightness = info
-        .control("Brightness")
-        .ok_or("vivid has no Brightness control")?;
+    let brightness = info.control("Brightness")?;
     ensure!(
         brightness.typ == CtrlType::Integer && brightness.minimum < brightness.maximum,
         "Brightness is not an integer control with a range: {brightness:?}"
@@ -463,9 +462,7 @@ fn raw_frames(node: &Path, n: usize) -> Result<Vec<(u32, Nanos, Nanos)>, String>
 }
 
 fn timestamps(node: &Path, info: &Info, raw: &Device) -> Check {
-    let src = info
-        .control("Timestamp Source")
-        .ok_or("vivid has no \"Timestamp Source\" control")?;
+    let src = info.control("Timestamp Source")?;
     let original = raw.params().map_err(|e| format!("G_PARM: {e}"))?.interval;
     // Half a second per frame: the windows' placement against the dequeue time then tells the
     // two timestamp sources apart despite the VM's latencies.
@@ -731,10 +728,7 @@ fn busy(node: &Path) -> Check {
 }
 
 fn timeout(node: &Path, info: &Info, raw: &Device) -> Check {
-    let drop_pct = info
-        .control("Percentage of Dropped Buffers")
-        .ok_or("vivid has no \"Percentage of Dropped Buffers\" control")?
-        .id;
+    let drop_pct = info.control("Percentage of Dropped Buffers")?.id;
     let c = V4l2Config {
         frame_timeout_ms: 700,
         ..cfg(node, Some("YUYV"), (640, 480))
@@ -764,10 +758,7 @@ fn timeout(node: &Path, info: &Info, raw: &Device) -> Check {
 }
 
 fn error_frames(node: &Path, info: &Info, raw: &Device) -> Check {
-    let inject = info
-        .control("Inject V4L2_BUF_FLAG_ERROR")
-        .ok_or("vivid has no \"Inject V4L2_BUF_FLAG_ERROR\" control")?
-        .id;
+    let inject = info.control("Inject V4L2_BUF_FLAG_ERROR")?.id;
     let press = || {
         raw.set_control(Control {
             id: inject,
@@ -816,10 +807,7 @@ fn error_frames(node: &Path, info: &Info, raw: &Device) -> Check {
 }
 
 fn disconnect(node: &Path, info: &Info, raw: &Device) -> Check {
-    let button = info
-        .control("Disconnect")
-        .ok_or("vivid has no \"Disconnect\" control")?
-        .id;
+    let button = info.control("Disconnect")?.id;
     let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
     cam.focus(0, 10).map_err(|e| format!("focus: {e}"))?;
     capture(&mut cam)?;

@@ -5,8 +5,8 @@
 mod common;
 
 use common::{
-    bundle_dir, capture_and_wait, connect, dbus_error, load, outcome, runtime, subscribe, Bus,
-    Daemon,
+    bundle_dir, busctl, capture_and_wait, connect, dbus_error, load, outcome, runtime, subscribe,
+    Bus, Daemon,
 };
 use focusd::stack::metrics::psnr;
 use futures_util::StreamExt;
@@ -92,17 +92,7 @@ fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
 
         // 3. busctl.
         let (finished, failed) = subscribe(&proxy).await;
-        let o = Command::new("busctl")
-            .arg(format!("--address={}", bus.address))
-            .args([
-                "call",
-                "org.focusd.Focusd",
-                "/org/focusd/Focusd",
-                "org.focusd.Focusd1",
-                "Capture",
-            ])
-            .output()
-            .expect("busctl not found: install Debian's systemd package (CI does)");
+        let o = busctl(&bus, &["Capture"]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let reply = String::from_utf8_lossy(&o.stdout);
         let job = reply

@@ -4,7 +4,9 @@
 
 mod common;
 
-use common::{bundle_dir, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon};
+use common::{
+    bundle_dir, busctl, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon,
+};
 use futures_util::StreamExt;
 use std::path::Path;
 use std::process::Command;
@@ -181,33 +183,20 @@ fn a_client_that_disconnects_mid_job_does_not_stop_it() {
 fn calls_with_wrong_arguments_are_refused_and_the_daemon_keeps_serving() {
     let bus = Bus::start();
     let d = Daemon::start(&bus, &bundle_dir("calm"), false);
-    let busctl = |args: &[&str]| {
-        Command::new("busctl")
-            .arg(format!("--address={}", bus.address))
-            .args([
-                "call",
-                "org.focusd.Focusd",
-                "/org/focusd/Focusd",
-                "org.focusd.Focusd1",
-            ])
-            .args(args)
-            .output()
-            .unwrap()
-    };
     for args in [
         &["Cancel", "i", "5"][..],
         &["Cancel"][..],
         &["Capture", "s", "x"][..],
         &["Cancel", "ss", "a", "b"][..],
     ] {
-        let o = busctl(args);
+        let o = busctl(&bus, args);
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{args:?} was accepted");
         let clear = err.contains("Signature mismatch") || err.contains("takes no arguments");
         assert!(clear, "{args:?}: {err}");
     }
     let huge = "j".repeat(100_000);
-    let o = busctl(&["Cancel", "s", &huge]);
+    let o = busctl(&bus, &["Cancel", "s", &huge]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
     assert!(

@@ -17,6 +17,21 @@ pub fn bundle_dir(name: &str) -> PathBuf {
 }
 
 /// A private session bus, killed on drop.
+/// `busctl call` of a Focusd1 method on `bus`: `args` are the method, signature and values.
+pub fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
+    Command::new("busctl")
+        .arg(format!("--address={}", bus.address))
+        .args([
+            "call",
+            "org.focusd.Focusd",
+            "/org/focusd/Focusd",
+            "org.focusd.Focusd1",
+        ])
+        .args(args)
+        .output()
+        .expect("busctl not found: install Debian's systemd package (CI does)")
+}
+
 pub struct Bus {
     pub child: Child,
     pub address: String,
