@@ -80,10 +80,11 @@ pub fn run(a: &CaptureArgs) -> Result<()> {
     let report = report?;
     print_planes(&report.planes);
     let m = &report.memory;
-    match m.within_budget {
-        true => eprintln!("  memory  {}", m.plan),
-        false => eprintln!("  warning: {}; raise [fuse] memory_mb", m.plan),
-    }
+    let raise = "raise [fuse] memory_mb";
+    eprintln!(
+        "  {}",
+        super::fuse::memory_line(m.within_budget, &m.plan, raise)
+    );
     eprintln!(
         "focusd: captured {} planes, fused into {}",
         report.planes.len(),

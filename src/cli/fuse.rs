@@ -4,7 +4,7 @@ use super::progress::Bar;
 use crate::imageio::{self as io, Decoded};
 use crate::stack::fuse::{fuse, Alignment, FuseError, FuseParams, Method};
 use crate::stack::image::{Image, Sample};
-use crate::stack::memory::{Plan, DEFAULT_BUDGET};
+use crate::stack::memory::DEFAULT_BUDGET;
 use crate::stack::metrics::tenengrad;
 use crate::stack::register::{Method as Registered, RegisterError, RegisterParams};
 use crate::stack::transform::{FrameTransform, Transforms};
@@ -253,7 +253,9 @@ fn run_typed<T: Sample>(
             r.width, r.height, r.x, r.y
         );
     }
-    eprintln!("  {}", describe(&fused.memory));
+    let (fits, plan) = (fused.memory.fits(), fused.memory.to_string());
+    let raise = "raise --memory or fuse fewer or smaller frames";
+    eprintln!("  {}", memory_line(fits, &plan, raise));
     eprintln!("  time  load {:>8.1} ms", load_time.as_secs_f64() * 1e3);
     for (stage, d) in &fused.timings {
         eprintln!("  time  {stage:<5}{:>8.1} ms", d.as_secs_f64() * 1e3);
@@ -270,12 +272,13 @@ fn run_typed<T: Sample>(
     Ok(())
 }
 
-/// The memory plan in one line, or the warning that the budget is below what the stack needs.
-fn describe(plan: &Plan) -> String {
-    if plan.fits() {
+/// The memory plan in one line, or the warning that the budget is below what the stack needs
+/// with `raise`, how to raise it.
+pub fn memory_line(within_budget: bool, plan: &str, raise: &str) -> String {
+    if within_budget {
         format!("memory  {plan}")
     } else {
-        format!("warning: {plan}; raise --memory or fuse fewer or smaller frames")
+        format!("warning: {plan}; {raise}")
     }
 }
 

@@ -11,7 +11,7 @@ use crate::backend::v4l2;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
 use crate::capture::{Camera, CaptureError, Clock, Imu, Take};
 use crate::stack::fuse::{fuse, FuseError};
-use crate::stack::memory::Plan;
+use crate::stack::memory::{mib, Plan};
 use crate::stack::Progress;
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -127,7 +127,6 @@ pub struct MemoryReport {
 
 impl From<&Plan> for MemoryReport {
     fn from(p: &Plan) -> Self {
-        let mib = |b: usize| b.div_ceil(1 << 20);
         Self {
             budget_mib: mib(p.budget),
             estimated_peak_mib: mib(if p.fits() { p.peak } else { p.floor }),

@@ -1,4 +1,4 @@
-//! Separable Gaussian blur and area downsampling on f32 planes, parallel over rows.
+//! Separable Gaussian blur on f32 planes and area downsampling, parallel over rows.
 //!
 //! The blur streams: each worker takes a strip of output rows and keeps only the 2r+1
 //! horizontally filtered rows its vertical taps need (a ring that stays in L2), so no full-size
@@ -6,7 +6,7 @@
 //! which folds the mirrored taps together and accumulates whole blocks of pixels in registers,
 //! so it vectorises.
 
-use super::image::Plane;
+use super::image::{Image, Plane, Sample};
 use rayon::prelude::*;
 
 /// Normalised Gaussian taps, radius ⌈3σ⌉.
@@ -234,28 +234,40 @@ fn block<const LANES: usize>(src: &[f32], at: usize) -> &[f32; LANES] {
     src[at..at + LANES].try_into().unwrap()
 }
 
-/// Averages `factor`×`factor` blocks (partial blocks at the right and bottom edges included).
-pub fn downsample_area(src: &Plane, factor: usize) -> Plane {
+/// Averages `factor`×`factor` blocks of every channel (partial blocks at the right and bottom
+/// edges included), straight from the interleaved samples.
+pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
     if factor <= 1 {
         return src.clone();
     }
-    let (w, h) = (src.width, src.height);
+    let (w, h, n) = (src.width, src.height, src.channels);
     let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
-    let mut dst = vec![0.0f32; cw * ch];
-    dst.par_chunks_mut(cw).enumerate().for_each(|(cy, out)| {
-        let y0 = cy * factor;
-        let y1 = (y0 + factor).min(h);
-        for (cx, o) in out.iter_mut().enumerate() {
-            let x0 = cx * factor;
-            let x1 = (x0 + factor).min(w);
-            let mut s = 0.0;
-            for y in y0..y1 {
-                s += src.data[y * w + x0..y * w + x1].iter().sum::<f32>();
+    let mut dst = vec![T::default(); cw * ch * n];
+    dst.par_chunks_mut(cw * n)
+        .enumerate()
+        .for_each(|(cy, out)| {
+            let y0 = cy * factor;
+            let y1 = (y0 + factor).min(h);
+            let (mut sum, mut row) = (vec![0.0f32; n], vec![0.0f32; n]);
+            for (cx, px) in out.chunks_exact_mut(n).enumerate() {
+                let x0 = cx * factor;
+                let x1 = (x0 + factor).min(w);
+                sum.fill(0.0);
+                // Row by row, as the sums of f32 planes have always been formed.
+                for y in y0..y1 {
+                    row.fill(0.0);
+                    for s in src.data[(y * w + x0) * n..(y * w + x1) * n].chunks_exact(n) {
+                        row.iter_mut().zip(s).for_each(|(a, v)| *a += v.to_f32());
+                    }
+                    sum.iter_mut().zip(&row).for_each(|(a, r)| *a += r);
+                }
+                let count = ((y1 - y0) * (x1 - x0)) as f32;
+                px.iter_mut()
+                    .zip(&sum)
+                    .for_each(|(o, s)| *o = T::from_f32(s / count));
             }
-            *o = s / ((y1 - y0) * (x1 - x0)) as f32;
-        }
-    });
-    Plane::from_vec(cw, ch, 1, dst)
+        });
+    Image::from_vec(cw, ch, n, dst)
 }
 
 #[cfg(test)]

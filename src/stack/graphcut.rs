@@ -6,6 +6,7 @@
 //! in a band around the coarse label boundaries and where the coarse label misses fine detail.
 
 use super::align::Coverage;
+use super::blur::downsample_area;
 use super::expansion::{expand, Costs, Grid};
 use super::focus::{
     downsample_amplitude, focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE,
@@ -47,7 +48,7 @@ impl Default for GraphCutParams {
     }
 }
 
-/// Focus amplitudes of every frame on rows `r0..` of a level, and their maximum per pixel.
+/// Focus amplitudes of every frame on a run of rows of a level, and their maximum per pixel.
 struct Amps {
     /// Level pixel index of the first one held.
     offset: usize,
@@ -271,34 +272,6 @@ fn coarse_factor(pixels: usize, target: usize) -> usize {
     ((pixels as f64 / target.max(1) as f64).sqrt().ceil() as usize).max(1)
 }
 
-/// Averages `f`×`f` blocks of every channel (partial blocks at the edges included), straight from
-/// the interleaved samples: splitting a frame into f32 planes first cost 12 bytes a pixel.
-fn downsample_image<T: Sample>(img: &Image<T>, f: usize) -> Image<T> {
-    let (w, h, n) = (img.width, img.height, img.channels);
-    let (cw, ch) = (w.div_ceil(f), h.div_ceil(f));
-    let mut data = vec![T::default(); cw * ch * n];
-    data.par_chunks_mut(cw * n)
-        .enumerate()
-        .for_each(|(cy, out)| {
-            let (y0, y1) = (cy * f, ((cy + 1) * f).min(h));
-            let mut sum = vec![0.0f32; n];
-            for (cx, px) in out.chunks_exact_mut(n).enumerate() {
-                let (x0, x1) = (cx * f, ((cx + 1) * f).min(w));
-                sum.fill(0.0);
-                for y in y0..y1 {
-                    for s in img.data[(y * w + x0) * n..(y * w + x1) * n].chunks_exact(n) {
-                        sum.iter_mut().zip(s).for_each(|(a, v)| *a += v.to_f32());
-                    }
-                }
-                let count = ((y1 - y0) * (x1 - x0)) as f32;
-                px.iter_mut()
-                    .zip(&sum)
-                    .for_each(|(o, s)| *o = T::from_f32(s / count));
-            }
-        });
-    Image::from_vec(cw, ch, n, data)
-}
-
 /// Labels each pixel of an aligned stack with the index of the frame to copy it from. A frame is
 /// never chosen where its `coverage` misses; `fallback` must cover every pixel (the reference).
 /// With `band_rows` below the height, the full-resolution focus amplitudes are never held
@@ -353,7 +326,7 @@ pub fn label_stack<T: Sample>(
     }
 
     // Coarse level: seam weight λ/f keeps the energy's balance (areas shrink by f², seams by f).
-    let small: Vec<Image<T>> = frames.par_iter().map(|i| downsample_image(i, f)).collect();
+    let small: Vec<Image<T>> = frames.par_iter().map(|i| downsample_area(i, f)).collect();
     let (cw, ch) = (small[0].width, small[0].height);
     let camps = Amps::new(0, camps);
     let coarse = Level::new(&small, &camps, p.lambda / f as f32, p);

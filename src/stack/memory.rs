@@ -53,9 +53,13 @@ impl Plan {
     }
 }
 
+/// Bytes in MiB, rounded up.
+pub fn mib(bytes: usize) -> usize {
+    bytes.div_ceil(1 << 20)
+}
+
 impl fmt::Display for Plan {
     fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        let mib = |b: usize| b.div_ceil(1 << 20);
         let mut bands = match self.band_rows {
             usize::MAX => "whole-image compose".to_string(),
             r => format!("compose in bands of {r} rows"),

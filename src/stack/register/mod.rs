@@ -212,7 +212,6 @@ pub fn register_with<'a>(
         0 => n.max(1),
         k => k,
     };
-    let order: Vec<usize> = (0..n).collect();
     let prepare = |i: usize| {
         let l = luma(i);
         if (l.width, l.height) != (w, h) {
@@ -229,10 +228,10 @@ pub fn register_with<'a>(
         Ok(Prepared { levels, features })
     };
     let mut frames: Vec<Prepared> = Vec::with_capacity(n);
-    for group in order.chunks(at_once) {
-        let prepared: Vec<Prepared> = group
-            .par_iter()
-            .map(|&i| prepare(i))
+    for start in (0..n).step_by(at_once) {
+        let prepared: Vec<Prepared> = (start..(start + at_once).min(n))
+            .into_par_iter()
+            .map(prepare)
             .collect::<Result<_, _>>()?;
         frames.extend(prepared);
     }
