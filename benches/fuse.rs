@@ -3,8 +3,9 @@
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use focusd::sim::{render, SimParams};
-use focusd::stack::fuse::{fuse, FuseParams, Method};
+use focusd::stack::fuse::fuse;
 use focusd::stack::image::Image;
+use focusd::stack::params::{FuseParams, Method};
 use focusd::stack::NoProgress;
 use std::time::Duration;
 

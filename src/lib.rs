@@ -1,8 +1,10 @@
-//! focusd: hand-held focus stacking.
+//! focusd: hand-held focus stacking. The command line (`src/cli/`) is the binary's own and
+//! not part of this library.
 pub mod backend;
 pub mod capture;
-pub mod cli;
 pub mod imageio;
+pub mod malloc;
 pub mod service;
+pub mod setting;
 pub mod sim;
 pub mod stack;

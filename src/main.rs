@@ -1,5 +1,6 @@
+mod cli;
+
 use clap::{Parser, Subcommand};
-use focusd::cli;
 use std::process::ExitCode;
 
 /// Hand-held focus stacking for Linux phones.
@@ -29,7 +30,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    cli::malloc::tune();
+    focusd::malloc::tune();
     let args = Args::parse();
     let result = match &args.command {
         Command::Capture(a) => cli::capture::run(a),

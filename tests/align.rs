@@ -2,10 +2,11 @@
 
 use focusd::sim::{render, SimParams, SimStack};
 use focusd::stack::align::{warp_frame, Coverage, Exposure};
-use focusd::stack::fuse::{fuse, FuseParams};
+use focusd::stack::fuse::fuse;
 use focusd::stack::image::{Image, Plane};
 use focusd::stack::metrics::psnr;
-use focusd::stack::register::Method as Registered;
+use focusd::stack::params::FuseParams;
+use focusd::stack::register::Placement;
 use focusd::stack::transform::Warp;
 use focusd::stack::NoProgress;
 
@@ -166,7 +167,7 @@ fn a_nearly_blank_frame_still_fuses() {
     let al = fused.alignment.as_ref().unwrap();
     assert_eq!(
         al.registration.how[blank],
-        Registered::Inherited { from: blank - 1 }
+        Placement::Inherited { from: blank - 1 }
     );
     // The blank frame is left out of the fusion, so it costs nothing against leaving it out.
     let got = psnr(&fused.image, &s.truth, 0);

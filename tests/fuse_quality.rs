@@ -2,9 +2,10 @@
 
 use focusd::imageio::{load, Decoded};
 use focusd::stack::focus::{focus_amplitude, FocusParams, AMP_SCALE};
-use focusd::stack::fuse::{fuse, FuseParams, Method};
+use focusd::stack::fuse::fuse;
 use focusd::stack::image::Image;
 use focusd::stack::metrics::psnr;
+use focusd::stack::params::{FuseParams, Method};
 use focusd::stack::NoProgress;
 use std::path::Path;
 

@@ -5,7 +5,7 @@ use focusd::sim::render::{render_scene, true_positions};
 use focusd::sim::scene::Scene;
 use focusd::sim::{render, SimParams};
 use focusd::stack::image::Plane;
-use focusd::stack::register::{register, Method, RegisterError, RegisterParams, Registration};
+use focusd::stack::register::{register, Placement, RegisterError, RegisterParams, Registration};
 use focusd::stack::transform::{Affine, Transforms, Warp};
 use std::path::Path;
 
@@ -43,14 +43,14 @@ fn committed_handheld_stack_within_a_third_of_a_pixel() {
     let (lumas, t) = handheld();
     let reg = register(&lumas, t.reference, &RegisterParams::default()).unwrap();
     assert_eq!(reg.ref_to_frame[t.reference], Affine::IDENTITY);
-    assert_eq!(reg.how[t.reference], Method::Reference);
+    assert_eq!(reg.how[t.reference], Placement::Reference);
     let truth: Vec<Affine> = t.frames.iter().map(|f| f.ref_to_frame).collect();
     let e = errors(&reg, &truth, t.size[0], t.size[1]);
     assert!(e.iter().all(|&v| v <= 0.3), "corner errors {e:.3?}");
     for (i, how) in reg.how.iter().enumerate() {
         if i != t.reference {
             assert!(
-                matches!(how, Method::Direct | Method::Chained { .. }),
+                matches!(how, Placement::Direct | Placement::Chained { .. }),
                 "{i}: {how:?}"
             );
             assert!(reg.inliers[i] >= RegisterParams::default().min_inliers);
@@ -92,8 +92,8 @@ fn far_frames_chain_through_neighbours() {
         ..RegisterParams::default()
     };
     let reg = register(&lumas, t.reference, &p).unwrap();
-    assert_eq!(reg.how[6], Method::Chained { via: 5 });
-    assert_eq!(reg.how[7], Method::Chained { via: 6 });
+    assert_eq!(reg.how[6], Placement::Chained { via: 5 });
+    assert_eq!(reg.how[7], Placement::Chained { via: 6 });
     for i in [6, 7] {
         let e = reg.ref_to_frame[i].corner_error(&t.frames[i].ref_to_frame, t.size[0], t.size[1]);
         assert!(e <= 0.3, "frame {i}: {e:.3}");
@@ -115,7 +115,7 @@ fn blank_frame_takes_its_neighbours_pose() {
     let blank = 6;
     lumas[blank] = flat_noise(t.size[0], t.size[1], 0.5, 0.02);
     let reg = register(&lumas, t.reference, &RegisterParams::default()).unwrap();
-    assert_eq!(reg.how[blank], Method::Inherited { from: blank - 1 });
+    assert_eq!(reg.how[blank], Placement::Inherited { from: blank - 1 });
     assert_eq!(reg.ref_to_frame[blank], reg.ref_to_frame[blank - 1]);
     assert_eq!(reg.inliers[blank], 0);
     // The frame beyond it still registers, to the reference or through frame 5.

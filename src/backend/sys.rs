@@ -1,46 +1,24 @@
 //! The two C library calls std does not expose, for the V4L2 and IIO backends:
-//! `clock_gettime(CLOCK_MONOTONIC)` (std's `Instant` reads that clock but never shows its value, and IIO and V4L2 timestamps are
-//! compared against it) and `poll(2)` (a blocking read of /dev/iio:deviceN cannot be
-//! interrupted, so the reader waits for readability with a timeout and can be stopped).
-//! Declared directly, since std already links the C library, instead of adding the libc crate.
-//! Linux only: the constants are Linux's, the same on every architecture.
+//! `clock_gettime(CLOCK_MONOTONIC)` (std's `Instant` reads that clock but never shows its value,
+//! and IIO and V4L2 timestamps are compared against it) and `poll(2)` (a blocking read of
+//! /dev/iio:deviceN cannot be interrupted, so the reader waits for readability with a timeout
+//! and can be stopped). Through the libc crate, whose `timespec` and `pollfd` follow each
+//! target's ABI (a 64-bit `time_t` on 32-bit targets that have one).
 
 use crate::capture::{Clock, Nanos};
-use std::ffi::{c_int, c_long, c_short, c_ulong};
+use std::ffi::c_int;
 use std::io;
 use std::os::fd::AsRawFd;
-
-const CLOCK_MONOTONIC: c_int = 1;
-const POLLIN: c_short = 1;
-
-/// `struct timespec`: `time_t` is `long` on the glibc and musl ABIs of the phones' targets.
-#[repr(C)]
-struct Timespec {
-    tv_sec: c_long,
-    tv_nsec: c_long,
-}
-
-#[repr(C)]
-struct PollFd {
-    fd: c_int,
-    events: c_short,
-    revents: c_short,
-}
-
-extern "C" {
-    fn clock_gettime(clock: c_int, tp: *mut Timespec) -> c_int;
-    fn poll(fds: *mut PollFd, nfds: c_ulong, timeout: c_int) -> c_int;
-}
 
 /// Now on CLOCK_MONOTONIC, the clock of V4L2 buffer timestamps and (once
 /// `current_timestamp_clock` says `monotonic`) of IIO timestamps.
 pub fn monotonic_now() -> Nanos {
-    let mut ts = Timespec {
+    let mut ts = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,
     };
     // SAFETY: `ts` is a valid, writable timespec and the call writes only it.
-    let r = unsafe { clock_gettime(CLOCK_MONOTONIC, &mut ts) };
+    let r = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     // It fails only for a bad clock id or pointer, neither of which can happen here.
     assert_eq!(r, 0, "clock_gettime(CLOCK_MONOTONIC) failed");
     ts.tv_sec as Nanos * 1_000_000_000 + ts.tv_nsec as Nanos
@@ -49,13 +27,13 @@ pub fn monotonic_now() -> Nanos {
 /// Waits up to `timeout_ms` for `fd` to be readable (or at end of file, or in error: the next
 /// read says which); `Ok(false)` on timeout or signal.
 pub fn wait_readable(fd: &impl AsRawFd, timeout_ms: c_int) -> io::Result<bool> {
-    let mut p = PollFd {
+    let mut p = libc::pollfd {
         fd: fd.as_raw_fd(),
-        events: POLLIN,
+        events: libc::POLLIN,
         revents: 0,
     };
     // SAFETY: one valid pollfd, and the count says one.
-    let r = unsafe { poll(&mut p, 1, timeout_ms) };
+    let r = unsafe { libc::poll(&mut p, 1, timeout_ms) };
     match r {
         0 => Ok(false),
         r if r > 0 => Ok(true),

@@ -11,6 +11,34 @@ pub mod sweep;
 use crate::stack::image::Image;
 use serde::{Deserialize, Serialize};
 
+/// Every stage of a capture job: the sweep's, then the engine's. The names are the daemon's
+/// `Progress` stages and the CLI's progress text.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Waiting until the gyroscope has been still long enough.
+    WaitingStill,
+    /// Taking the planes.
+    Sweeping,
+    /// The engine's work on the frames.
+    Fuse(crate::stack::Stage),
+}
+
+impl Stage {
+    pub const fn name(self) -> &'static str {
+        match self {
+            Stage::WaitingStill => "waiting-still",
+            Stage::Sweeping => "sweeping",
+            Stage::Fuse(s) => s.name(),
+        }
+    }
+}
+
+impl From<crate::stack::Stage> for Stage {
+    fn from(s: crate::stack::Stage) -> Self {
+        Stage::Fuse(s)
+    }
+}
+
 /// Nanoseconds on CLOCK_MONOTONIC: the clock of V4L2 buffer timestamps and of IIO timestamps
 /// once `current_timestamp_clock` is set to `monotonic`.
 pub type Nanos = i64;

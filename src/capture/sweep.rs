@@ -2,7 +2,8 @@
 //! reshooting every take the motion gate rejects.
 
 use super::gate::{measure, Motion, Rest, Thresholds};
-use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Take};
+use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Stage, Take};
+use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 
 /// What to do when every take of a plane was shaken.
@@ -75,15 +76,16 @@ impl SweepConfig {
     }
 
     /// Checks the values a sweep cannot run with; the message names the key and the range.
-    pub fn validate(&self, range: (i32, i32)) -> Result<(), String> {
-        if !(2..=64).contains(&self.planes) {
-            return Err(format!("planes = {} is out of range 2..=64", self.planes));
-        }
+    pub fn validate(&self, range: (i32, i32)) -> Result<(), Invalid> {
+        Bounds::new(2, 64).check("planes", self.planes)?;
         for (key, v) in [("lens_near", self.lens_near), ("lens_far", self.lens_far)] {
             if let Some(v) = v.filter(|v| !(range.0..=range.1).contains(v)) {
-                return Err(format!(
-                    "{key} = {v} is outside the lens range {}..={}",
-                    range.0, range.1
+                return Err(Invalid::new(
+                    key,
+                    format!(
+                        "{key} = {v} is outside the lens range {}..={}",
+                        range.0, range.1
+                    ),
                 ));
             }
         }
@@ -93,16 +95,13 @@ impl SweepConfig {
             ("still_gyro_rms", self.still_gyro_rms),
             ("focal_px", self.focal_px),
         ];
-        if let Some((key, v)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
-            return Err(format!("{key} = {v} must be a positive number"));
-        }
-        if self.max_reshoots > 20 {
-            return Err(format!(
-                "max_reshoots = {} is out of range 0..=20",
-                self.max_reshoots
+        if let Some(&(key, v)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+            return Err(Invalid::new(
+                key,
+                format!("{key} = {v} must be a positive number"),
             ));
         }
-        Ok(())
+        Bounds::new(0, 20).check("max_reshoots", self.max_reshoots)
     }
 }
 
@@ -138,8 +137,8 @@ pub struct Sweep {
 
 /// Reports the sweep's progress and asks whether to go on.
 pub trait Monitor {
-    /// Planes done of `total`, and the stage (`waiting-still`, `sweeping`).
-    fn progress(&self, stage: &'static str, done: usize, total: usize);
+    /// Planes done of `total`, and the stage (`WaitingStill`, `Sweeping`).
+    fn progress(&self, stage: Stage, done: usize, total: usize);
     fn cancelled(&self) -> bool;
 }
 
@@ -147,7 +146,7 @@ pub trait Monitor {
 pub struct Unmonitored;
 
 impl Monitor for Unmonitored {
-    fn progress(&self, _: &'static str, _: usize, _: usize) {}
+    fn progress(&self, _: Stage, _: usize, _: usize) {}
     fn cancelled(&self) -> bool {
         false
     }
@@ -178,13 +177,13 @@ fn run(
 ) -> Result<Sweep, CaptureError> {
     let range = camera.lens_range();
     cfg.validate(range)
-        .map_err(|e| CaptureError::device("sweep config", e))?;
-    monitor.progress("waiting-still", 0, cfg.planes);
+        .map_err(|e| CaptureError::device("sweep config", e.to_string()))?;
+    monitor.progress(Stage::WaitingStill, 0, cfg.planes);
     let (rest, started) = wait_still(imu, clock, cfg, monitor)?;
     let mut frames = Vec::with_capacity(cfg.planes);
     let mut planes = Vec::with_capacity(cfg.planes);
     for (plane, lens) in cfg.positions(range).into_iter().enumerate() {
-        monitor.progress("sweeping", plane, cfg.planes);
+        monitor.progress(Stage::Sweeping, plane, cfg.planes);
         camera.focus(plane, lens)?;
         let mut report = PlaneReport {
             plane,
@@ -234,7 +233,7 @@ fn run(
         frames.push(tried.swap_remove(chosen).0);
         planes.push(report);
     }
-    monitor.progress("sweeping", cfg.planes, cfg.planes);
+    monitor.progress(Stage::Sweeping, cfg.planes, cfg.planes);
     Ok(Sweep {
         frames,
         planes,

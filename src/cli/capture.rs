@@ -3,13 +3,14 @@
 //! trace as a replay bundle, to replay and debug later.
 
 use super::progress::Bar;
-use crate::backend::replay::BundleWriter;
-use crate::capture::record::Recording;
-use crate::capture::sweep::{sweep, PlaneReport, Unmonitored};
-use crate::imageio as io;
-use crate::service::config::Config;
-use crate::service::job::{self, Rig, Source};
 use anyhow::{Context, Result};
+use focusd::backend::replay::BundleWriter;
+use focusd::capture::record::Recording;
+use focusd::capture::sweep::{sweep, PlaneReport, Unmonitored};
+use focusd::imageio as io;
+use focusd::service::config::Config;
+use focusd::service::fuse_settings::QUALITY;
+use focusd::service::job::{self, Rig, Source};
 use std::path::{Path, PathBuf};
 
 /// Where the frames come from, and how.
@@ -56,7 +57,7 @@ pub struct CaptureArgs {
     #[arg(long, value_name = "R.json")]
     pub report: Option<PathBuf>,
     /// JPEG quality, 1..=100 (default: the config's [fuse] quality).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
+    #[arg(long, value_parser = QUALITY.parser())]
     pub quality: Option<u8>,
 }
 

@@ -1,26 +1,18 @@
 //! `focusd fuse`: fuse a focus stack from image files into one all-in-focus image.
 
 use super::progress::Bar;
-use crate::imageio::{self as io, Decoded};
-use crate::stack::fuse::{fuse, Alignment, FuseError, FuseParams, Method};
-use crate::stack::image::{Image, Sample};
-use crate::stack::memory::DEFAULT_BUDGET;
-use crate::stack::metrics::tenengrad;
-use crate::stack::register::{Method as Registered, RegisterError, RegisterParams};
-use crate::stack::transform::{FrameTransform, Transforms};
 use anyhow::{bail, Context, Result};
+use focusd::imageio::{self as io, Decoded};
+use focusd::service::fuse_settings::FuseSettings;
+use focusd::stack::fuse::{fuse, Alignment, FuseError};
+use focusd::stack::image::{Image, Sample};
+use focusd::stack::metrics::tenengrad;
+use focusd::stack::register::{Placement, RegisterError};
+use focusd::stack::transform::{FrameTransform, Transforms};
 use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MethodArg {
-    /// Graph-cut labelling with seam blending (the paper's method).
-    Graphcut,
-    /// Laplacian-pyramid max-contrast fusion (the enfuse-style baseline).
-    Pyramid,
-}
 
 #[derive(clap::Args, Debug)]
 pub struct FuseArgs {
@@ -36,30 +28,14 @@ pub struct FuseArgs {
     /// Take the frames as already registered (by default each is aligned to the reference).
     #[arg(long)]
     pub no_align: bool,
-    /// Crop the output to the largest rectangle every aligned frame covers (by default the
-    /// output has the reference frame's full size, filled from the frames that cover it).
-    #[arg(long, conflicts_with = "no_align")]
-    pub crop: bool,
     /// Write each frame's global affine (reference pixels to frame pixels) as JSON.
     #[arg(long, value_name = "FILE.json", conflicts_with = "no_align")]
     pub save_transforms: Option<PathBuf>,
-    #[arg(long, value_enum, default_value = "graphcut")]
-    pub method: MethodArg,
     /// Write the label map: frame index scaled to 0..255 (0 = first frame), 8-bit gray.
     #[arg(long, value_name = "D.png")]
     pub depthmap: Option<PathBuf>,
-    /// JPEG quality, 1..=100.
-    #[arg(long, default_value_t = 92, value_parser = clap::value_parser!(u8).range(1..=100))]
-    pub quality: u8,
-    /// Seam weight λ against the focus cost, 0.01..=10; higher gives fewer, smoother seams.
-    #[arg(long, default_value_t = 0.3)]
-    pub lambda: f32,
-    /// Memory budget in MiB, 64..=65536: a tighter one composes and labels in bands of rows and
-    /// registers fewer frames at once (slower, same image); below what the stack needs at least,
-    /// it fuses anyway in the smallest bands and says so.
-    #[arg(long, value_name = "MIB", default_value_t = (DEFAULT_BUDGET >> 20) as u32,
-          value_parser = clap::value_parser!(u32).range(64..=65536))]
-    pub memory: u32,
+    #[command(flatten)]
+    pub settings: FuseSettings,
 }
 
 /// Checks every argument that can be checked before any pixel work.
@@ -81,9 +57,6 @@ fn check_args(a: &FuseArgs) -> Result<()> {
                 a.frames.len() - 1
             );
         }
-    }
-    if !(0.01..=10.0).contains(&a.lambda) {
-        bail!("--lambda {} is out of range 0.01..=10", a.lambda);
     }
     for out in std::iter::once(&a.output)
         .chain(&a.depthmap)
@@ -184,20 +157,15 @@ fn run_typed<T: Sample>(
 ) -> Result<()> {
     let frames = match_channels(frames);
     let n = frames.len();
-    let reference = a.reference.unwrap_or((n - 1) / 2);
     let (w, h) = (frames[0].width, frames[0].height);
-    let mut params = FuseParams {
-        method: match a.method {
-            MethodArg::Graphcut => Method::GraphCut,
-            MethodArg::Pyramid => Method::Pyramid,
-        },
-        align: (!a.no_align).then(RegisterParams::default),
-        reference,
-        crop: a.crop,
-        memory: (a.memory as usize) << 20,
-        ..FuseParams::default()
-    };
-    params.graphcut.lambda = a.lambda;
+    let mut params = a.settings.params(n);
+    if let Some(r) = a.reference {
+        params.reference = r;
+    }
+    if a.no_align {
+        params.align = None;
+    }
+    let reference = params.reference;
     let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
     let bar = Bar::stderr();
     let fused = fuse(frames, &params, &bar).map_err(|e| name_frame(e, &a.frames));
@@ -208,7 +176,7 @@ fn run_typed<T: Sample>(
     }
 
     let t = Instant::now();
-    let mut bytes = io::encode(&fused.image, io::format_for(&a.output)?, a.quality)?;
+    let mut bytes = io::encode(&fused.image, io::format_for(&a.output)?, a.settings.quality)?;
     if io::format_for(&a.output)? == image::ImageFormat::Jpeg {
         bytes = with_exif_of(&a.frames[reference], bytes)?;
     }
@@ -224,7 +192,7 @@ fn run_typed<T: Sample>(
                 .map(|&l| (l as f32 * scale).round() as u8)
                 .collect(),
         );
-        io::save(&depth, d, a.quality)?;
+        io::save(&depth, d, a.settings.quality)?;
     }
     if let (Some(path), Some(al)) = (&a.save_transforms, &fused.alignment) {
         let t = Transforms {
@@ -297,16 +265,16 @@ fn report_alignment(al: &Alignment, files: &[PathBuf]) {
     let reg = &al.registration;
     for (i, file) in files.iter().enumerate() {
         let how = match reg.how[i] {
-            Registered::Reference => "reference".to_string(),
-            Registered::Direct => format!(
+            Placement::Reference => "reference".to_string(),
+            Placement::Direct => format!(
                 "matched  {:>4} inliers, rms {:.2} px, ncc {:.3}",
                 reg.inliers[i], reg.residual_px[i], reg.correlation[i]
             ),
-            Registered::Chained { via } => format!(
+            Placement::Chained { via } => format!(
                 "chained via frame {via}: {} inliers, rms {:.2} px, ncc {:.3}",
                 reg.inliers[i], reg.residual_px[i], reg.correlation[i]
             ),
-            Registered::Inherited { from } => {
+            Placement::Inherited { from } => {
                 format!("too little texture to match: takes frame {from}'s pose, left out")
             }
         };

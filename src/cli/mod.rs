@@ -1,12 +1,11 @@
 //! Command-line front ends over the library.
 pub mod capture;
 pub mod fuse;
-pub mod malloc;
 pub mod progress;
 pub mod serve;
 pub mod simulate;
 
-use crate::service::config::Config;
+use focusd::service::config::Config;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

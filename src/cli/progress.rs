@@ -1,6 +1,6 @@
 //! A terminal progress bar for the engine's `Progress`; draws nothing when stderr is not a terminal.
 
-use crate::stack::Progress;
+use focusd::stack::{Progress, Stage};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
 
@@ -28,9 +28,9 @@ impl Bar {
 }
 
 impl Progress for Bar {
-    fn stage(&self, name: &'static str, total: usize) {
-        super::malloc::release_freed_memory();
-        self.0.set_message(name);
+    fn stage(&self, stage: Stage, total: usize) {
+        focusd::malloc::release_freed_memory();
+        self.0.set_message(stage.name());
         self.0.set_length(total as u64);
         self.0.set_position(0);
     }

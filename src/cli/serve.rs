@@ -1,7 +1,8 @@
 //! `focusd serve` (the D-Bus daemon) and `focusd trigger` (its one-button client).
 
-use crate::service::daemon::{self, Bus, ServeOptions, BUS_NAME, OBJECT_PATH};
 use anyhow::{bail, Context, Result};
+use focusd::service::daemon::{self, Bus, ServeOptions, BUS_NAME, OBJECT_PATH};
+use focusd::service::proxy::Focusd1Proxy;
 use futures_util::StreamExt;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -46,7 +47,7 @@ pub struct ServeArgs {
     /// camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P or panic:P (P a plane).
     /// Repeatable.
     #[arg(long, requires = "replay", value_name = "FAULT")]
-    pub fault: Vec<crate::backend::replay::faults::Fault>,
+    pub fault: Vec<focusd::backend::replay::faults::Fault>,
     #[command(flatten)]
     pub bus: BusArgs,
 }
@@ -79,28 +80,6 @@ pub fn serve(a: &ServeArgs) -> Result<()> {
         faults: a.fault.clone(),
         bus: a.bus.bus(),
     })
-}
-
-#[zbus::proxy(
-    interface = "org.focusd.Focusd1",
-    default_service = "org.focusd.Focusd",
-    default_path = "/org/focusd/Focusd"
-)]
-pub trait Focusd1 {
-    fn capture(&self) -> zbus::Result<String>;
-    fn cancel(&self, job: &str) -> zbus::Result<()>;
-    #[zbus(signal)]
-    fn progress(&self, job: &str, stage: &str, done: u32, total: u32) -> zbus::Result<()>;
-    #[zbus(signal)]
-    fn finished(&self, job: &str, path: &str) -> zbus::Result<()>;
-    #[zbus(signal)]
-    fn failed(&self, job: &str, error: &str) -> zbus::Result<()>;
-    #[zbus(property)]
-    fn state(&self) -> zbus::Result<String>;
-    #[zbus(property)]
-    fn last_result(&self) -> zbus::Result<String>;
-    #[zbus(property)]
-    fn version(&self) -> zbus::Result<String>;
 }
 
 #[derive(clap::Args, Debug)]

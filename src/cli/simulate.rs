@@ -5,13 +5,13 @@
 //! round(i·255/(planes−1)), as `focusd fuse --depthmap` writes it), `transforms.json` (true
 //! reference→frame affines) and `stack.json` (parameters and per-frame focus, gain and pose).
 
-use crate::backend::replay::BundleWriter;
-use crate::imageio::{encode, save, write_atomic};
-use crate::sim::bundle::{self, Shake};
-use crate::sim::{self, FrameInfo, SimParams};
-use crate::stack::image::Image;
-use crate::stack::transform::{FrameTransform, Transforms};
 use anyhow::{bail, Context, Result};
+use focusd::backend::replay::BundleWriter;
+use focusd::imageio::{encode, save, write_atomic};
+use focusd::sim::bundle::{self, Shake};
+use focusd::sim::{self, FrameInfo, SimParams};
+use focusd::stack::image::Image;
+use focusd::stack::transform::{FrameTransform, Transforms};
 use serde::Serialize;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -369,8 +369,8 @@ const SHAKE_SMEAR_PX: usize = 9;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::imageio::{load, Decoded};
     use clap::Parser;
+    use focusd::imageio::{load, Decoded};
 
     #[derive(Parser)]
     struct Cli {
@@ -464,7 +464,7 @@ mod tests {
         assert_eq!(t.frames[2].file, "frame_02.jpg");
         assert_eq!(
             t.frames[1].ref_to_frame,
-            crate::stack::transform::Affine::IDENTITY
+            focusd::stack::transform::Affine::IDENTITY
         );
         let s: serde_json::Value =
             serde_json::from_slice(&fs::read(out.join("stack.json")).unwrap()).unwrap();

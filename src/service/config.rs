@@ -1,89 +1,13 @@
 //! The configuration file (`config/focusd.toml`): one table per part, every key optional.
 //! Unknown keys and bad values are refused with the file, the line and what is allowed.
 
+use super::fuse_settings::FuseSettings;
 use crate::backend::iio::IioConfig;
 use crate::backend::v4l2::V4l2Config;
 use crate::capture::sweep::SweepConfig;
-use crate::stack::fuse::{FuseParams, Method};
-use crate::stack::graphcut::GraphCutParams;
-use crate::stack::memory::DEFAULT_BUDGET;
+use crate::setting::Invalid;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-/// How to fuse a captured stack (the `[fuse]` table).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct FuseConfig {
-    /// `graphcut` (the paper's method) or `pyramid` (the enfuse-style baseline).
-    pub method: FuseMethod,
-    /// Seam weight against the focus cost, 0.01..=10.
-    pub lambda: f32,
-    /// JPEG quality of the output, 1..=100.
-    pub quality: u8,
-    /// Crop to the area every registered frame covers.
-    pub crop: bool,
-    /// Memory budget of a fuse in MiB, 64..=65536 (see `stack::memory`).
-    pub memory_mb: u32,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FuseMethod {
-    Graphcut,
-    Pyramid,
-}
-
-impl Default for FuseConfig {
-    fn default() -> Self {
-        Self {
-            method: FuseMethod::Graphcut,
-            lambda: GraphCutParams::default().lambda,
-            quality: 92,
-            crop: false,
-            memory_mb: (DEFAULT_BUDGET >> 20) as u32,
-        }
-    }
-}
-
-impl FuseConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        if !(0.01..=10.0).contains(&self.lambda) {
-            return Err(format!(
-                "lambda = {} is out of range 0.01..=10",
-                self.lambda
-            ));
-        }
-        if !(1..=100).contains(&self.quality) {
-            return Err(format!(
-                "quality = {} is out of range 1..=100",
-                self.quality
-            ));
-        }
-        if !(64..=65536).contains(&self.memory_mb) {
-            return Err(format!(
-                "memory_mb = {} is out of range 64..=65536",
-                self.memory_mb
-            ));
-        }
-        Ok(())
-    }
-
-    /// The engine's parameters for a stack of `frames` frames (reference: the middle one).
-    pub fn params(&self, frames: usize) -> FuseParams {
-        let mut p = FuseParams {
-            method: match self.method {
-                FuseMethod::Graphcut => Method::GraphCut,
-                FuseMethod::Pyramid => Method::Pyramid,
-            },
-            reference: frames.saturating_sub(1) / 2,
-            crop: self.crop,
-            memory: (self.memory_mb as usize) << 20,
-            ..FuseParams::default()
-        };
-        p.graphcut.lambda = self.lambda;
-        p
-    }
-}
 
 /// Where results go (the `[output]` table).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -109,15 +33,21 @@ impl Default for OutputConfig {
 }
 
 impl OutputConfig {
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), Invalid> {
         if !["jpg", "png", "tif"].contains(&self.format.as_str()) {
-            return Err(format!(
-                "format = {:?} is not one of \"jpg\", \"png\", \"tif\"",
-                self.format
+            return Err(Invalid::new(
+                "format",
+                format!(
+                    "format = {:?} is not one of \"jpg\", \"png\", \"tif\"",
+                    self.format
+                ),
             ));
         }
         if self.dir.as_os_str().is_empty() {
-            return Err("dir is empty: name the directory outputs go to".into());
+            return Err(Invalid::new(
+                "dir",
+                "dir is empty: name the directory outputs go to",
+            ));
         }
         Ok(())
     }
@@ -132,7 +62,7 @@ pub struct Config {
     /// Unset in the file: a replay sweeps its bundle's own planes and lens positions, a phone
     /// the defaults.
     pub sweep: Option<SweepConfig>,
-    pub fuse: FuseConfig,
+    pub fuse: FuseSettings,
     pub output: OutputConfig,
 }
 
@@ -177,42 +107,31 @@ impl Config {
             ("fuse", self.fuse.validate()),
             ("output", self.output.validate()),
         ] {
-            if let Err(why) = result {
-                let key = why
-                    .split([' ', ':', '='])
-                    .next()
-                    .unwrap_or_default()
-                    .to_string();
-                return Err((line_of(text, table, &key), format!("[{table}] {why}")));
+            if let Err(e) = result {
+                return Err((line_of(text, table, e.key), format!("[{table}] {e}")));
             }
         }
         Ok(())
     }
 }
 
-/// The line of `key` (maybe dotted, `thresholds.gyro`) in `[table]`, written either under
-/// its own header (`[sweep.thresholds]`) or dotted under the table's.
+/// The 1-based line where `key` (maybe dotted, `thresholds.gyro`) of `[table]` is set, however
+/// the file spells it (under `[sweep.thresholds]`, dotted under `[sweep]`, inline), from the
+/// spans of the parsed document.
 fn line_of(text: &str, table: &str, key: &str) -> Option<usize> {
-    let (sub, leaf) = match key.rsplit_once('.') {
-        Some((sub, leaf)) => (format!("{table}.{sub}"), leaf),
-        None => (table.to_string(), key),
-    };
-    let mut current = String::new();
-    for (i, line) in text.lines().enumerate() {
-        let l = line.trim();
-        if let Some(h) = l.strip_prefix('[') {
-            current = h.trim_end_matches(']').trim().to_string();
-            continue;
-        }
-        let Some((k, _)) = l.split_once('=') else {
-            continue;
-        };
-        let k = k.trim();
-        if (current == sub && k == leaf) || (current == table && k == key) {
-            return Some(i + 1);
+    use toml::de::{DeTable, DeValue};
+    let doc = DeTable::parse(text).ok()?;
+    let mut t = doc.get_ref();
+    let mut span = None;
+    for part in std::iter::once(table).chain(key.split('.')) {
+        let (k, v) = t.get_key_value(part)?;
+        span = Some(k.span());
+        match v.get_ref() {
+            DeValue::Table(inner) => t = inner,
+            _ => break,
         }
     }
-    None
+    span.map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ use super::job::{self, Rig, Source};
 use super::output;
 use crate::backend::replay::faults::Fault;
 use crate::capture::sweep::Monitor;
+use crate::capture::Stage;
 use crate::stack::Progress;
 use anyhow::{Context, Result};
 use std::panic::AssertUnwindSafe;
@@ -113,7 +114,7 @@ enum Event {
     Stage,
     Progress {
         job: String,
-        stage: &'static str,
+        stage: Stage,
         done: u32,
         total: u32,
     },
@@ -179,7 +180,7 @@ impl Focusd {
             id: id.clone(),
             cancel,
         });
-        s.stage = "waiting-still";
+        s.stage = state_of(Stage::WaitingStill);
         drop(s);
         requests
             .send(request)
@@ -250,21 +251,33 @@ struct Reporter {
     events: UnboundedSender<Event>,
     cancel: Arc<AtomicBool>,
     /// The engine's current stage, its steps and the steps done.
-    stage: Mutex<(&'static str, usize)>,
+    stage: Mutex<(Stage, usize)>,
     done: AtomicUsize,
 }
 
+/// The `State` property while a job is in `stage`.
+fn state_of(stage: Stage) -> &'static str {
+    match stage {
+        Stage::WaitingStill | Stage::Sweeping => stage.name(),
+        Stage::Fuse(s) if s.registers() => "registering",
+        Stage::Fuse(_) => "fusing",
+    }
+}
+
 impl Reporter {
-    fn set_stage(&self, stage: &'static str) {
+    /// A new stage begins: the state follows it, and memory the last one freed goes back.
+    fn set_stage(&self, stage: Stage) {
+        crate::malloc::release_freed_memory();
+        let state = state_of(stage);
         let mut s = self.shared.lock();
-        if s.stage != stage {
-            s.stage = stage;
+        if s.stage != state {
+            s.stage = state;
             drop(s);
             let _ = self.events.send(Event::Stage);
         }
     }
 
-    fn send(&self, stage: &'static str, done: usize, total: usize) {
+    fn send(&self, stage: Stage, done: usize, total: usize) {
         let _ = self.events.send(Event::Progress {
             job: self.job.clone(),
             stage,
@@ -275,7 +288,7 @@ impl Reporter {
 }
 
 impl Monitor for Reporter {
-    fn progress(&self, stage: &'static str, done: usize, total: usize) {
+    fn progress(&self, stage: Stage, done: usize, total: usize) {
         self.set_stage(stage);
         self.send(stage, done, total);
     }
@@ -286,14 +299,12 @@ impl Monitor for Reporter {
 }
 
 impl Progress for Reporter {
-    fn stage(&self, name: &'static str, total: usize) {
-        self.set_stage(match name {
-            "register" | "warp" => "registering",
-            _ => "fusing",
-        });
-        *self.stage.lock().unwrap_or_else(|e| e.into_inner()) = (name, total);
+    fn stage(&self, stage: crate::stack::Stage, total: usize) {
+        let stage = Stage::from(stage);
+        self.set_stage(stage);
+        *self.stage.lock().unwrap_or_else(|e| e.into_inner()) = (stage, total);
         self.done.store(0, Ordering::SeqCst);
-        self.send(name, 0, total);
+        self.send(stage, 0, total);
     }
 
     /// Sends at most one signal per percent of a stage.
@@ -324,7 +335,7 @@ fn worker(
             shared: shared.clone(),
             events: events.clone(),
             cancel: r.cancel.clone(),
-            stage: Mutex::new(("", 0)),
+            stage: Mutex::new((Stage::WaitingStill, 0)),
             done: AtomicUsize::new(0),
         };
         let _ = events.send(Event::Stage);
@@ -409,7 +420,7 @@ async fn relay(iface: InterfaceRef<Focusd>, mut events: UnboundedReceiver<Event>
                 stage,
                 done,
                 total,
-            } => Focusd::progress(emitter, &job, stage, done, total).await,
+            } => Focusd::progress(emitter, &job, stage.name(), done, total).await,
             Event::Finished { job, path } => {
                 let r = Focusd::finished(emitter, &job, &path).await;
                 let _ = iface.get().await.last_result_changed(emitter).await;

@@ -2,7 +2,8 @@
 //! a replay of a recorded bundle), sweep, register and fuse, and write the image and its
 //! report atomically.
 
-use super::config::{Config, FuseConfig};
+use super::config::Config;
+use super::fuse_settings::FuseSettings;
 use crate::backend::iio::IioImu;
 use crate::backend::replay::faults::{self, Fault};
 use crate::backend::replay::{self, Bundle};
@@ -148,7 +149,7 @@ pub fn is_cancel(e: &anyhow::Error) -> bool {
 /// reports to `monitor`, the fusion to `progress`; both can cancel.
 pub fn run(
     rig: &mut Rig,
-    fuse_cfg: &FuseConfig,
+    fuse_cfg: &FuseSettings,
     output: &Path,
     report: Option<&Path>,
     monitor: &dyn Monitor,
@@ -183,9 +184,10 @@ pub fn run(
     crate::imageio::write_atomic(output, &bytes)?;
     let mut timings = BTreeMap::from([("capture", capture_ms)]);
     for (stage, d) in &fused.timings {
-        let key = match *stage {
-            "register" | "warp" => "register",
-            _ => "fuse",
+        let key = if stage.registers() {
+            "register"
+        } else {
+            "fuse"
         };
         *timings.entry(key).or_default() += d.as_secs_f64() * 1e3;
     }

@@ -2,5 +2,7 @@
 //! run, the output directory, and the D-Bus daemon.
 pub mod config;
 pub mod daemon;
+pub mod fuse_settings;
 pub mod job;
 pub mod output;
+pub mod proxy;

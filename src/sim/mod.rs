@@ -20,6 +20,7 @@ pub mod rng;
 pub mod scene;
 pub mod shape;
 pub mod texture;
+pub mod warp;
 
 use crate::stack::image::Image;
 use crate::stack::transform::Affine;

@@ -15,11 +15,11 @@ use super::optics::Optics;
 use super::pose::{draw_poses, Pose};
 use super::rng::Rng;
 use super::scene::{Depth, Layer, Scene};
+use super::warp::warp_affine;
 use super::{FrameInfo, SimParams, SimStack};
 use crate::stack::blur::gaussian_blur;
 use crate::stack::image::{Image, Plane};
 use crate::stack::transform::Affine;
-use crate::stack::warp::warp_affine;
 use rayon::prelude::*;
 
 /// RNG streams besides the scene's (see `scene::STREAM_SCENE`).

@@ -15,7 +15,7 @@ use super::image::{Image, Plane, Sample};
 use super::pyramid::{
     collapse_of, fill_gaussian, fill_laplacian, levels_for, with_levels, zeros_like,
 };
-use super::Progress;
+use super::{Progress, Stage};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -139,7 +139,7 @@ pub fn compose<T: Sample>(
             }
         })
         .collect();
-    progress.stage("compose", used.iter().map(Vec::len).sum());
+    progress.stage(Stage::Compose, used.iter().map(Vec::len).sum());
     let mut image = Image::new(w, h, channels);
     let mut choice = vec![0u8; w * h];
     for (band, used) in bands.iter().zip(&used) {

@@ -2,51 +2,15 @@
 
 use super::align::{estimate_exposure, warp_frame_into, Coverage, Exposure, Rect};
 use super::compose::{compose, Select};
-use super::graphcut::{label_stack, GraphCutParams};
+use super::graphcut::label_stack;
 use super::image::{Image, Sample};
-use super::memory::{self, Plan, Stack, DEFAULT_BUDGET};
-use super::register::{
-    register_with, Method as Registered, RegisterError, RegisterParams, Registration,
-};
+use super::memory::{self, Plan, Stack};
+use super::params::{FuseParams, Method};
+use super::register::{register_with, Placement, RegisterError, Registration};
 use super::transform::Warp;
-use super::Progress;
+use super::{Progress, Stage};
 use std::borrow::Cow;
 use std::time::{Duration, Instant};
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Method {
-    /// Graph-cut labelling plus multiband seam blending (the paper's method).
-    GraphCut,
-    /// Laplacian-pyramid max-contrast fusion (the baseline).
-    Pyramid,
-}
-
-#[derive(Clone, Debug)]
-pub struct FuseParams {
-    pub method: Method,
-    pub graphcut: GraphCutParams,
-    /// Register every frame to the reference first; `None` takes the frames as aligned.
-    pub align: Option<RegisterParams>,
-    /// The frame whose geometry and exposure the output takes.
-    pub reference: usize,
-    /// Crop the output to the largest rectangle every aligned frame covers.
-    pub crop: bool,
-    /// Bytes the fuse should stay within (see `memory::plan`).
-    pub memory: usize,
-}
-
-impl Default for FuseParams {
-    fn default() -> Self {
-        Self {
-            method: Method::GraphCut,
-            graphcut: GraphCutParams::default(),
-            align: Some(RegisterParams::default()),
-            reference: 0,
-            crop: false,
-            memory: DEFAULT_BUDGET,
-        }
-    }
-}
 
 /// Why a stack cannot be fused; `frame` indices are 0-based positions in the input.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -101,7 +65,7 @@ pub struct Fused<T> {
     /// The rectangle of the reference frame the output shows, when cropped.
     pub crop: Option<Rect>,
     /// Wall time of each stage, in order.
-    pub timings: Vec<(&'static str, Duration)>,
+    pub timings: Vec<(Stage, Duration)>,
     /// How the memory budget was spent.
     pub memory: Plan,
 }
@@ -146,27 +110,30 @@ pub fn fuse<T: Sample>(
     go_on(progress)?;
     let mut timings = Vec::new();
     let mut t = Instant::now();
-    let mut lap = |name: &'static str, timings: &mut Vec<(&'static str, Duration)>| {
-        timings.push((name, t.elapsed()));
+    let mut lap = |stage: Stage, timings: &mut Vec<(Stage, Duration)>| {
+        timings.push((stage, t.elapsed()));
         t = Instant::now();
     };
     let reference = params.reference;
     let plan = memory::plan(&stack_of(&frames), params);
     let alignment = match &params.align {
         Some(p) => {
-            progress.stage("register", 1);
+            progress.stage(Stage::Register, 1);
             let size = (frames[0].width, frames[0].height);
             let luma = |i: usize| Cow::Owned(frames[i].luma());
-            let p = RegisterParams {
-                concurrent_frames: plan.concurrent_frames,
-                ..p.clone()
-            };
-            let registration = register_with(frames.len(), size, luma, reference, &p)?;
+            let registration = register_with(
+                frames.len(),
+                size,
+                luma,
+                reference,
+                p,
+                plan.concurrent_frames,
+            )?;
             progress.advance(1);
-            lap("register", &mut timings);
+            lap(Stage::Register, &mut timings);
             go_on(progress)?;
             let a = align(&mut frames, registration, reference, progress);
-            lap("warp", &mut timings);
+            lap(Stage::Warp, &mut timings);
             go_on(progress)?;
             Some(a)
         }
@@ -190,7 +157,7 @@ pub fn fuse<T: Sample>(
                 plan.label_rows,
                 progress,
             );
-            lap("labels", &mut timings);
+            lap(Stage::Labels, &mut timings);
             go_on(progress)?;
             let (image, _) = compose(
                 &frames,
@@ -198,13 +165,13 @@ pub fn fuse<T: Sample>(
                 plan.band_rows,
                 progress,
             );
-            lap("compose", &mut timings);
+            lap(Stage::Compose, &mut timings);
             go_on(progress)?;
             (image, labels)
         }
         Method::Pyramid => {
             let r = compose(&frames, Select::MaxContrast, plan.band_rows, progress);
-            lap("pyramid", &mut timings);
+            lap(Stage::Pyramid, &mut timings);
             go_on(progress)?;
             r
         }
@@ -248,7 +215,7 @@ fn align<T: Sample>(
     progress: &dyn Progress,
 ) -> Alignment {
     let n = frames.len();
-    progress.stage("warp", n - 1);
+    progress.stage(Stage::Warp, n - 1);
     let (w, h) = (frames[0].width, frames[0].height);
     let mut exposure = vec![vec![Exposure::SAME; frames[0].channels]; n];
     let mut coverage = vec![Coverage::full(w, h); n];
@@ -263,7 +230,7 @@ fn align<T: Sample>(
             .enumerate()
             .map(|(k, f)| (reference + 1 + k, f)),
     ) {
-        if let Registered::Inherited { .. } = registration.how[i] {
+        if let Placement::Inherited { .. } = registration.how[i] {
             // Too little texture to match means too little to contribute, and its pose is only
             // a guess: it stands in as the reference and covers nothing.
             f.clone_from(r);

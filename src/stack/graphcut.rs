@@ -13,7 +13,7 @@ use super::focus::{
 };
 use super::image::{Image, Sample};
 use super::maxflow::GridMaxflow;
-use super::Progress;
+use super::{Progress, Stage};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -287,7 +287,7 @@ pub fn label_stack<T: Sample>(
     let (w, h) = (frames[0].width, frames[0].height);
     let f = coarse_factor(w * h, p.coarse_pixels);
     let whole = band_rows >= h || f == 1;
-    progress.stage("focus", frames.len());
+    progress.stage(Stage::Focus, frames.len());
     let (mut kept, mut camps) = (Vec::new(), Vec::new());
     for (frame, cov) in frames.iter().zip(coverage) {
         let a = amplitude_rows(frame, cov, &p.focus, 0..h);
@@ -458,7 +458,7 @@ impl<T: Sample> Solve<'_, T> {
         let plans: Vec<Vec<Window>> = (0..passes)
             .map(|k| windows_for(if k % 2 == 1 { tile / 2 } else { 0 }))
             .collect();
-        progress.stage("labels", plans.iter().map(Vec::len).sum());
+        progress.stage(Stage::Labels, plans.iter().map(Vec::len).sum());
         // After the first pass each tile is optimal for its fixed borders, so later passes
         // only re-solve the strips along the first pass's tile borders.
         let reach = tile / 4;

@@ -8,11 +8,8 @@
 //! in bytes and are checked against `/usr/bin/time -v` by `scripts/bench-memory`.
 
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
-use super::fuse::{FuseParams, Method};
+use super::params::{FuseParams, Method};
 use std::fmt;
-
-/// The default budget: a PinePhone has 2–3 GB shared with the phone's other work.
-pub const DEFAULT_BUDGET: usize = 512 << 20;
 
 /// Label bands are whole rows of the graph cut's 64-pixel tiles.
 const LABEL_GRID: usize = 64;

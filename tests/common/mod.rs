@@ -1,7 +1,7 @@
 //! What the daemon tests share: a private bus, `focusd serve` on it, a zbus client.
 #![allow(dead_code)] // each test crate uses a part
 
-use focusd::cli::serve::{FailedStream, FinishedStream, Focusd1Proxy};
+use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy};
 use focusd::stack::image::Image;
 use futures_util::StreamExt;
 use std::io::{BufRead, BufReader};
@@ -16,7 +16,6 @@ pub fn bundle_dir(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// A private session bus, killed on drop.
 /// `busctl call` of a Focusd1 method on `bus`: `args` are the method, signature and values.
 pub fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
     Command::new("busctl")
@@ -32,6 +31,7 @@ pub fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
         .expect("busctl not found: install Debian's systemd package (CI does)")
 }
 
+/// A private session bus, killed on drop.
 pub struct Bus {
     pub child: Child,
     pub address: String,

@@ -11,6 +11,7 @@ pub mod store;
 pub mod sysfs;
 
 use crate::capture::{CaptureError, Imu, ImuSample, Nanos, Sensor};
+use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -66,20 +67,11 @@ impl Default for IioConfig {
 }
 
 impl IioConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        if let Some(hz) = self
-            .sampling_hz
-            .filter(|hz| !(hz.is_finite() && (1.0..=8000.0).contains(hz)))
-        {
-            return Err(format!("sampling_hz = {hz} is out of range 1..=8000"));
+    pub fn validate(&self) -> Result<(), Invalid> {
+        if let Some(hz) = self.sampling_hz {
+            Bounds::new(1.0, 8000.0).check("sampling_hz", hz)?;
         }
-        if !(10..=60_000).contains(&self.timeout_ms) {
-            return Err(format!(
-                "timeout_ms = {} is out of range 10..=60000",
-                self.timeout_ms
-            ));
-        }
-        Ok(())
+        Bounds::new(10, 60_000).check("timeout_ms", self.timeout_ms)
     }
 }
 
@@ -106,7 +98,7 @@ pub struct IioImu {
 impl IioImu {
     pub fn open(cfg: &IioConfig) -> Result<IioImu, CaptureError> {
         cfg.validate()
-            .map_err(|e| CaptureError::device("[imu] config", e))?;
+            .map_err(|e| CaptureError::device("[imu] config", e.to_string()))?;
         let devices = sysfs::find(
             &cfg.sysfs_root,
             cfg.gyro_device.as_deref(),

@@ -72,7 +72,7 @@ struct TimingSource {
 /// Streaming starts at the first capture.
 pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
     cfg.validate()
-        .map_err(|e| CaptureError::device("[camera] config", e))?;
+        .map_err(|e| CaptureError::device("[camera] config", e.to_string()))?;
     let spec = ControlSpec::parse(cfg.focus_control.as_deref())
         .map_err(|e| CaptureError::device("[camera] config", format!("focus_control {e}")))?;
     let (node, dev) = open_node(cfg)?;

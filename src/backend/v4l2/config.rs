@@ -2,6 +2,7 @@
 
 use super::format::PixelFormat;
 use super::lens::ControlSpec;
+use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -66,14 +67,8 @@ impl Default for V4l2Config {
 }
 
 impl V4l2Config {
-    pub fn validate(&self) -> Result<(), String> {
-        let range = |key: &str, v: u64, lo: u64, hi: u64| {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(format!("{key} = {v} is out of range {lo}..={hi}"))
-            }
-        };
+    pub fn validate(&self) -> Result<(), Invalid> {
+        let range = |key, v: u64, lo, hi| Bounds::new(lo, hi).check(key, v);
         range("width", self.width.into(), 16, 16384)?;
         range("height", self.height.into(), 16, 16384)?;
         range("settle_ms", self.settle_ms, 0, 1000)?;
@@ -82,20 +77,25 @@ impl V4l2Config {
         // v4l's `set_timeout` panics past i32::MAX ms; a minute is already a dead pipeline.
         range("frame_timeout_ms", self.frame_timeout_ms, 10, 60_000)?;
         if self.drop_frames < self.buffers {
-            return Err(format!(
-                "drop_frames = {} is less than buffers = {}: each queued buffer may hold a frame \
-                 exposed before the lens moved, so drop_frames must be at least buffers",
-                self.drop_frames, self.buffers
+            return Err(Invalid::new(
+                "drop_frames",
+                format!(
+                    "drop_frames = {} is less than buffers = {}: each queued buffer may hold a \
+                     frame exposed before the lens moved, so drop_frames must be at least buffers",
+                    self.drop_frames, self.buffers
+                ),
             ));
         }
         if let Some(f) = &self.format {
-            PixelFormat::parse(f).map_err(|e| format!("format = {f:?}: {e}"))?;
+            PixelFormat::parse(f)
+                .map_err(|e| Invalid::new("format", format!("format = {f:?}: {e}")))?;
         }
         ControlSpec::parse(self.focus_control.as_deref())
-            .map_err(|e| format!("focus_control: {e}"))?;
-        let empty = |key: &str, v: Option<&str>| match v {
-            Some("") => Err(format!(
-                "{key} is empty: leave it out to pick automatically"
+            .map_err(|e| Invalid::new("focus_control", format!("focus_control: {e}")))?;
+        let empty = |key, v: Option<&str>| match v {
+            Some("") => Err(Invalid::new(
+                key,
+                format!("{key} is empty: leave it out to pick automatically"),
             )),
             _ => Ok(()),
         };
@@ -139,7 +139,7 @@ mod tests {
         let bad = |f: fn(&mut V4l2Config)| {
             let mut cfg = V4l2Config::default();
             f(&mut cfg);
-            cfg.validate().expect_err("refused")
+            cfg.validate().expect_err("refused").message
         };
         assert_eq!(bad(|c| c.width = 0), "width = 0 is out of range 16..=16384");
         assert_eq!(
@@ -157,7 +157,7 @@ mod tests {
             format: Some("XYZW".into()),
             ..V4l2Config::default()
         };
-        let e = cfg.validate().expect_err("unknown fourcc");
+        let e = cfg.validate().expect_err("unknown fourcc").message;
         assert!(
             e.starts_with("format = \"XYZW\"") && e.contains("YUYV"),
             "{e}"
@@ -168,6 +168,7 @@ mod tests {
         assert!(cfg
             .validate()
             .expect_err("bad id")
+            .message
             .starts_with("focus_control"));
         cfg.focus_control = Some("Brightness".into());
         assert_eq!(cfg.validate(), Ok(()));
@@ -175,6 +176,7 @@ mod tests {
         assert!(cfg
             .validate()
             .expect_err("empty")
+            .message
             .starts_with("lens is empty"));
     }
 }

@@ -74,9 +74,6 @@ pub struct RegisterParams {
     pub ransac_iterations: usize,
     /// Seed of RANSAC's sampling: the same input gives the same result.
     pub seed: u64,
-    /// Frames prepared at once, each with its full-resolution luma in memory (4 bytes a pixel);
-    /// 0: one per thread. A memory budget lowers it (see `stack::memory`).
-    pub concurrent_frames: usize,
 }
 
 impl Default for RegisterParams {
@@ -95,14 +92,13 @@ impl Default for RegisterParams {
             min_inliers: 16,
             ransac_iterations: 2000,
             seed: 0x5eed,
-            concurrent_frames: 0,
         }
     }
 }
 
 /// How a frame's affine was found.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Method {
+pub enum Placement {
     /// The reference itself: the identity.
     Reference,
     /// Keypoints matched against the reference.
@@ -123,7 +119,7 @@ pub struct Registration {
     /// (the convention of [`Affine`]; identity for the reference).
     pub ref_to_frame: Vec<Affine>,
     /// Per frame: how it was registered.
-    pub how: Vec<Method>,
+    pub how: Vec<Placement>,
     /// Inlier keypoint matches of the fit that registered the frame (0 for the reference and
     /// inherited frames).
     pub inliers: Vec<usize>,
@@ -181,18 +177,22 @@ pub fn register(
         |i| Cow::Borrowed(&lumas[i]),
         reference,
         p,
+        0,
     )
 }
 
 /// [`register`] with each frame's luma made on demand by `luma(i)` (`size` = width, height)
 /// and dropped once its pyramid levels are built, so a stack's full-resolution lumas are never
-/// all in memory (10 × 3 MP: 120 MB).
+/// all in memory (10 × 3 MP: 120 MB). `concurrent_frames` frames are prepared at once, each
+/// with its full-resolution luma in memory (4 bytes a pixel); 0: one per thread. A memory
+/// budget lowers it (see `stack::memory`).
 pub fn register_with<'a>(
     n: usize,
     size: (usize, usize),
     luma: impl Fn(usize) -> Cow<'a, Plane> + Sync,
     reference: usize,
     p: &RegisterParams,
+    concurrent_frames: usize,
 ) -> Result<Registration, RegisterError> {
     if reference >= n {
         return Err(match n {
@@ -208,7 +208,7 @@ pub fn register_with<'a>(
     let fine = level_within(w, h, p.refine_pixels);
     let coarse = fine + p.refine_levels.max(1) - 1;
     // Unlimited, rayon still prepares one frame per thread at a time.
-    let at_once = match p.concurrent_frames {
+    let at_once = match concurrent_frames {
         0 => n.max(1),
         k => k,
     };
@@ -247,7 +247,7 @@ pub fn register_with<'a>(
         .collect();
     let mut reg = Registration {
         ref_to_frame: vec![Affine::IDENTITY; n],
-        how: vec![Method::Reference; n],
+        how: vec![Placement::Reference; n],
         inliers: vec![0; n],
         residual_px: vec![0.0; n],
         correlation: vec![f64::NAN; n],
@@ -264,7 +264,7 @@ pub fn register_with<'a>(
         let refined: Vec<Option<(refine::Refined, Option<OffsetField>)>> = (0..n)
             .into_par_iter()
             .map(|i| {
-                let matched = matches!(reg.how[i], Method::Direct | Method::Chained { .. });
+                let matched = matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
                 matched.then(|| {
                     let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
                     let r = refine::refine(&tpl, levels, init, p.refine_iterations);
@@ -284,7 +284,7 @@ pub fn register_with<'a>(
             }
         }
         for &i in &outwards {
-            if let Method::Inherited { from } = reg.how[i] {
+            if let Placement::Inherited { from } = reg.how[i] {
                 reg.ref_to_frame[i] = reg.ref_to_frame[from];
             }
         }
@@ -311,18 +311,18 @@ fn chain_or_inherit(
     };
     let mut found = direct
         .filter(|f| f.inliers.len() >= needed)
-        .map(|f| (f, Method::Direct, Affine::IDENTITY));
+        .map(|f| (f, Placement::Direct, Affine::IDENTITY));
     for &j in &toward {
         if found.is_some() {
             break;
         }
-        if !matches!(reg.how[j], Method::Direct | Method::Chained { .. }) {
+        if !matches!(reg.how[j], Placement::Direct | Placement::Chained { .. }) {
             continue;
         }
         if let Some(f) = m.fit(j, i) {
             most = most.max(f.inliers.len());
             if f.inliers.len() >= needed {
-                found = Some((f, Method::Chained { via: j }, reg.ref_to_frame[j]));
+                found = Some((f, Placement::Chained { via: j }, reg.ref_to_frame[j]));
             }
         }
     }
@@ -336,7 +336,7 @@ fn chain_or_inherit(
     if m.frames[i].features.pos.len() < needed {
         let from = toward.first().copied().unwrap_or(reference);
         reg.ref_to_frame[i] = reg.ref_to_frame[from];
-        reg.how[i] = Method::Inherited { from };
+        reg.how[i] = Placement::Inherited { from };
         return Ok(());
     }
     Err(RegisterError::Unmatched {

@@ -1,7 +1,8 @@
-//! Resampling a frame into another frame's geometry through an affine transform.
+//! Resampling a plane into another frame's geometry through an affine transform, for rendering
+//! simulated hand-held frames (the engine warps interleaved frames itself, in `stack::align`).
 
-use super::image::Plane;
-use super::transform::Affine;
+use crate::stack::image::Plane;
+use crate::stack::transform::Affine;
 use rayon::prelude::*;
 
 /// Samples `src` at `dst_to_src(x, y)` for every pixel of a `width`×`height` output (bilinear).
