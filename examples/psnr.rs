@@ -8,11 +8,13 @@
 //!
 //! ```text
 //! sim-data/aligned/truth.png: tenengrad 21.37
-//! fused.png: psnr 30.96 dB, tenengrad 20.85
+//! fused.png: psnr 30.96 dB, max diff 187, tenengrad 20.85
 //! ```
 //!
 //! PSNR is over all pixels and channels on the 8-bit scale (`focusd::stack::metrics::psnr`),
-//! leaving out `N` pixels along each edge (default 0, as in the README's quality tables).
+//! leaving out `N` pixels along each edge (default 0, as in the README's quality tables); max
+//! diff is the largest difference of one channel of one pixel over the same pixels (the arm64
+//! check in `tests/arm64/run` compares two builds' pictures with it).
 //! Tenengrad is the mean Sobel gradient magnitude of luma in 8-bit units
 //! (`focusd::stack::metrics::tenengrad`). An image that cannot be read or whose size differs
 //! from the truth's is reported on stderr and skipped; the exit status is then 1.
@@ -89,8 +91,14 @@ fn measure(truth: &focusd::stack::image::Image<u8>, path: &Path, margin: usize) 
             img.height
         );
     }
+    let (w, ch) = (img.width, img.channels);
+    let max_diff = (margin..img.height - margin)
+        .flat_map(|y| (margin * ch..(w - margin) * ch).map(move |i| y * w * ch + i))
+        .map(|i| img.data[i].abs_diff(truth.data[i]))
+        .max()
+        .unwrap_or(0);
     println!(
-        "{}: psnr {:.2} dB, tenengrad {:.2}",
+        "{}: psnr {:.2} dB, max diff {max_diff}, tenengrad {:.2}",
         path.display(),
         psnr(&img, truth, margin),
         tenengrad(&img)
