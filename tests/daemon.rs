@@ -14,6 +14,42 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+/// A person at a terminal: `trigger --wait` under a pseudo-terminal (util-linux `script`) draws
+/// a progress bar from the Progress signals instead of one line per stage, then the path.
+#[test]
+fn trigger_at_a_terminal_shows_a_progress_bar() {
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &bundle_dir("shaken"), false);
+    let command = format!(
+        "'{}' trigger --wait --address '{}'",
+        env!("CARGO_BIN_EXE_focusd"),
+        bus.address
+    );
+    let o = Command::new("script")
+        .args(["-qec", &command, "/dev/null"])
+        .output()
+        .expect("script not found: it is in Debian's bsdutils (essential)");
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}\n{}", d.log());
+    // The path comes after the bar is cleared (a carriage return and an erase-line sequence).
+    let last = out.split(['\r', '\n']).rfind(|l| !l.trim().is_empty());
+    let path = last
+        .unwrap_or_default()
+        .trim_start_matches("\x1b[2K")
+        .trim();
+    assert!(Path::new(path).starts_with(d.out()), "{out:?}");
+    assert!(
+        !out.contains("focusd: sweeping"),
+        "lines instead of a bar: {out}"
+    );
+    // The bar: a stage name, then `[====>   ] done/total`.
+    let bar = out
+        .split(['\r', '\n'])
+        .find(|l| l.contains("sweeping") && l.contains(" [") && l.contains("] "))
+        .unwrap_or_else(|| panic!("no bar drawn: {out:?}"));
+    assert!(bar.contains('/'), "{bar}");
+}
+
 #[test]
 fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
     let bus = Bus::start();

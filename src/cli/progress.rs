@@ -22,6 +22,13 @@ impl Bar {
         Self(bar)
     }
 
+    /// `done` of `total` steps of `stage`, as the daemon's Progress signals report them.
+    pub fn show(&self, stage: &str, done: u64, total: u64) {
+        self.0.set_length(total);
+        self.0.set_position(done);
+        self.0.set_message(stage.to_string());
+    }
+
     pub fn finish(&self) {
         self.0.finish_and_clear();
     }

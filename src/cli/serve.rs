@@ -1,8 +1,9 @@
 //! `focusd serve` (the D-Bus daemon) and `focusd trigger` (its one-button client).
 
+use super::progress::Bar;
 use anyhow::{bail, Context, Result};
 use focusd::service::daemon::{self, Bus, ServeOptions, BUS_NAME, OBJECT_PATH};
-use focusd::service::proxy::Focusd1Proxy;
+use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy, ProgressStream};
 use futures_util::StreamExt;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -129,6 +130,33 @@ async fn trigger_async(a: &TriggerArgs) -> Result<()> {
         println!("{job}");
         return Ok(());
     }
+    // A person at a terminal sees a bar; a script's log gets one line per stage.
+    let bar = std::io::stderr().is_terminal().then(Bar::stderr);
+    let result = wait_for(
+        a,
+        &job,
+        &mut progress,
+        &mut finished,
+        &mut failed,
+        bar.as_ref(),
+    )
+    .await;
+    if let Some(b) = &bar {
+        b.finish();
+    }
+    println!("{}", result?);
+    Ok(())
+}
+
+/// Follows job `job` until it ends: the image's path, or why it failed.
+async fn wait_for(
+    a: &TriggerArgs,
+    job: &str,
+    progress: &mut ProgressStream,
+    finished: &mut FinishedStream,
+    failed: &mut FailedStream,
+    bar: Option<&Bar>,
+) -> Result<String> {
     let deadline = tokio::time::sleep(Duration::from_secs(a.timeout));
     tokio::pin!(deadline);
     let mut last_stage = String::new();
@@ -136,16 +164,20 @@ async fn trigger_async(a: &TriggerArgs) -> Result<()> {
         tokio::select! {
             Some(s) = progress.next() => {
                 let args = s.args()?;
-                if args.job == job && args.stage != last_stage {
-                    eprintln!("focusd: {}", args.stage);
-                    last_stage = args.stage.to_string();
+                if args.job != job {
+                    continue;
                 }
+                match bar {
+                    Some(b) => b.show(args.stage, args.done.into(), args.total.into()),
+                    None if args.stage != last_stage => eprintln!("focusd: {}", args.stage),
+                    None => {}
+                }
+                last_stage = args.stage.to_string();
             }
             Some(s) = finished.next() => {
                 let args = s.args()?;
                 if args.job == job {
-                    println!("{}", args.path);
-                    return Ok(());
+                    return Ok(args.path.to_string());
                 }
             }
             Some(s) = failed.next() => {
