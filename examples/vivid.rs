@@ -10,18 +10,13 @@
 
 use focusd::backend::sys::{monotonic_now, MonotonicClock};
 use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
+use focusd::backend::videodev::abi::{self, Fract};
+use focusd::backend::videodev::{BufType, ControlDesc, Device, Stream};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Sensor, Take};
 use focusd::stack::image::Image;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use v4l::buffer::Type as BufType;
-use v4l::control::{Control, Description, Type as CtrlType, Value};
-use v4l::io::mmap::Stream as MmapStream;
-use v4l::io::traits::CaptureStream;
-use v4l::video::capture::Parameters;
-use v4l::video::Capture;
-use v4l::{Device, Fraction};
 
 type Check = Result<(), String>;
 
@@ -65,14 +60,16 @@ fn main() {
     }
 }
 
-/// What the raw device says, through the v4l crate (not the backend).
+/// What the raw device says, through the videodev layer (not the camera backend).
 struct Info {
+    /// The node's capture API.
+    buf: BufType,
     formats: Vec<String>,
-    controls: Vec<Description>,
+    controls: Vec<ControlDesc>,
 }
 
 impl Info {
-    fn control(&self, name: &str) -> Result<&Description, String> {
+    fn control(&self, name: &str) -> Result<&ControlDesc, String> {
         self.controls
             .iter()
             .find(|c| c.name.eq_ignore_ascii_case(name))
@@ -84,17 +81,17 @@ fn run(node: &Path) -> Check {
     let info = inspect(node)?;
     let brightness = info.control("Brightness")?;
     ensure!(
-        brightness.typ == CtrlType::Integer && brightness.minimum < brightness.maximum,
+        brightness.kind == abi::CTRL_TYPE_INTEGER && brightness.min < brightness.max,
         "Brightness is not an integer control with a range: {brightness:?}"
     );
-    let range = (brightness.minimum as i32, brightness.maximum as i32);
-    let raw = Device::with_path(node).map_err(|e| format!("{}: {e}", node.display()))?;
+    let range = (brightness.min as i32, brightness.max as i32);
+    let raw = Device::open(node).map_err(|e| format!("{}: {e}", node.display()))?;
     set(&raw, brightness.id, brightness.default)?;
 
     no_focus_control(node)?;
     open_by_card()?;
     lens_is_the_control(node, range)?;
-    formats(node, &info)?;
+    formats(node, &info, &raw)?;
     streaming(node)?;
     timestamps(node, &info, &raw)?;
     lens_restored(node, &raw, brightness.id, range)?;
@@ -110,40 +107,49 @@ fn run(node: &Path) -> Check {
 }
 
 fn inspect(node: &Path) -> Result<Info, String> {
-    let dev = Device::with_path(node).map_err(|e| format!("{}: {e}", node.display()))?;
-    let caps = dev.query_caps().map_err(|e| format!("query_caps: {e}"))?;
+    let dev = Device::open(node).map_err(|e| format!("{}: {e}", node.display()))?;
+    let caps = dev
+        .capabilities()
+        .map_err(|e| format!("VIDIOC_QUERYCAP: {e}"))?;
     println!(
-        "device: {} card {:?} driver {:?} caps {}",
+        "device: {} card {:?} driver {:?} caps 0x{:08x}",
         node.display(),
         caps.card,
         caps.driver,
-        caps.capabilities
+        caps.caps
     );
+    let buf = if caps.caps & abi::CAP_VIDEO_CAPTURE != 0 {
+        BufType::Capture
+    } else {
+        BufType::CaptureMplane
+    };
     let formats: Vec<String> = dev
-        .enum_formats()
-        .map_err(|e| format!("enum_formats: {e}"))?
+        .formats(buf)
+        .map_err(|e| format!("VIDIOC_ENUM_FMT: {e}"))?
         .iter()
         .map(|f| {
-            println!("format: {} ({})", f.fourcc, f.description);
-            f.fourcc.str().unwrap_or("?").trim_end().to_string()
+            let name = String::from_utf8_lossy(f).trim_end().to_string();
+            println!("format: {name}");
+            name
         })
         .collect();
     let controls = dev
-        .query_controls()
-        .map_err(|e| format!("query_controls: {e}"))?;
+        .controls()
+        .map_err(|e| format!("VIDIOC_QUERY_EXT_CTRL: {e}"))?;
     for c in &controls {
         println!(
-            "control: 0x{:08x} {:?} {:?} {}..={} step {} default {} flags {}",
-            c.id, c.name, c.typ, c.minimum, c.maximum, c.step, c.default, c.flags
+            "control: 0x{:08x} {:?} type {} {}..={} step {} default {} flags 0x{:x}",
+            c.id, c.name, c.kind, c.min, c.max, c.step, c.default, c.flags
         );
     }
-    if let Ok(p) = dev.params() {
-        println!(
-            "interval: {}/{} s",
-            p.interval.numerator, p.interval.denominator
-        );
+    if let Ok(p) = dev.frame_interval(buf) {
+        println!("interval: {}/{} s", p.numerator, p.denominator);
     }
-    Ok(Info { formats, controls })
+    Ok(Info {
+        buf,
+        formats,
+        controls,
+    })
 }
 
 fn cfg(node: &Path, format: Option<&str>, (width, height): (u32, u32)) -> V4l2Config {
@@ -168,23 +174,18 @@ fn capture(cam: &mut V4l2Camera) -> Result<Take, String> {
 }
 
 fn set(dev: &Device, id: u32, v: i64) -> Check {
-    dev.set_control(Control {
-        id,
-        value: Value::Integer(v),
-    })
-    .map_err(|e| format!("setting control 0x{id:08x} to {v}: {e}"))
+    dev.set_control(id, v)
+        .map_err(|e| format!("setting control 0x{id:08x} to {v}: {e}"))
 }
 
 fn get(dev: &Device, id: u32) -> Result<i64, String> {
-    match dev
-        .control(id)
-        .map_err(|e| format!("reading 0x{id:08x}: {e}"))?
-        .value
-    {
-        Value::Integer(v) => Ok(v),
-        Value::Boolean(b) => Ok(b.into()),
-        v => Err(format!("control 0x{id:08x} has value {v:?}")),
-    }
+    dev.control(id)
+        .map_err(|e| format!("reading 0x{id:08x}: {e}"))
+}
+
+/// Presses a button control.
+fn press(dev: &Device, info: &Info, name: &str) -> Check {
+    set(dev, info.control(name)?.id, 0).map_err(|e| format!("pressing {name}: {e}"))
 }
 
 fn mean_luma(img: &Image<u8>) -> f64 {
@@ -338,7 +339,7 @@ fn lens_is_the_control(node: &Path, range: (i32, i32)) -> Check {
     Ok(())
 }
 
-fn formats(node: &Path, info: &Info) -> Check {
+fn formats(node: &Path, info: &Info, raw: &Device) -> Check {
     let mut wanted: Vec<&str> = vec!["YUYV", "UYVY", "RGB3", "NV12"];
     wanted.extend(
         BAYER
@@ -350,7 +351,6 @@ fn formats(node: &Path, info: &Info) -> Check {
         "vivid offers none of the Bayer formats {BAYER:?}: {:?}",
         info.formats
     );
-    let raw = Device::with_path(node).map_err(|e| e.to_string())?;
     for size in [(640, 480), (320, 240)] {
         for f in &wanted {
             ensure!(
@@ -360,12 +360,12 @@ fn formats(node: &Path, info: &Info) -> Check {
             );
             let mut cam = open(&cfg(node, Some(f), size))?;
             let take = capture(&mut cam)?;
-            let g = raw.format().map_err(|e| format!("G_FMT: {e}"))?;
+            let g = raw.format(info.buf).map_err(|e| format!("G_FMT: {e}"))?;
             let img = &take.image;
+            let fourcc = String::from_utf8_lossy(&g.fourcc).trim_end().to_string();
             ensure!(
-                g.fourcc.str().ok() == Some(f),
-                "{f}: the driver's format is {} after open",
-                g.fourcc
+                fourcc == *f,
+                "{f}: the driver's format is {fourcc} after open"
             );
             ensure!(
                 (img.width, img.height, img.channels) == (g.width as usize, g.height as usize, 3),
@@ -399,7 +399,15 @@ fn formats(node: &Path, info: &Info) -> Check {
             ok(format!(
                 "{f} asked {}x{}: negotiated {}x{} stride {} (sizeimage {}), RGB frame of that \
                  size, 8 colour bars right (white {:?}, red {:?}, blue {:?}), mean luma {luma:.1}",
-                size.0, size.1, g.width, g.height, g.stride, g.size, bars[0], bars[5], bars[6]
+                size.0,
+                size.1,
+                g.width,
+                g.height,
+                g.planes[0].bytesperline,
+                g.planes[0].sizeimage,
+                bars[0],
+                bars[5],
+                bars[6]
             ));
         }
     }
@@ -445,44 +453,60 @@ fn streaming(node: &Path) -> Check {
     Ok(())
 }
 
-/// Raw buffers through the v4l crate: (flags, timestamp, monotonic time at dequeue).
-fn raw_frames(node: &Path, n: usize) -> Result<Vec<(u32, Nanos, Nanos)>, String> {
-    let dev = Device::with_path(node).map_err(|e| e.to_string())?;
-    let mut s = MmapStream::with_buffers(&dev, BufType::VideoCapture, 4)
-        .map_err(|e| format!("raw stream: {e}"))?;
-    s.set_timeout(Duration::from_secs(5));
+/// A raw stream on the videodev layer (not the camera backend).
+fn raw_stream(node: &Path, info: &Info) -> Result<Stream, String> {
+    let dev = Device::open(node).map_err(|e| format!("{}: {e}", node.display()))?;
+    Stream::new(dev, info.buf, 4).map_err(|e| format!("raw stream: {e}"))
+}
+
+/// The next raw buffer's flags and timestamp, the buffer queued back at once.
+fn raw_frame(s: &mut Stream) -> Result<(u32, Nanos), String> {
+    let d = s
+        .dequeue(Duration::from_secs(5))
+        .map_err(|e| format!("raw dequeue: {e}"))?;
+    s.queue(d.index).map_err(|e| format!("raw queue: {e}"))?;
+    Ok((d.flags, d.sec * 1_000_000_000 + d.usec * 1000))
+}
+
+/// Raw buffers: (flags, timestamp, monotonic time at dequeue).
+fn raw_frames(node: &Path, info: &Info, n: usize) -> Result<Vec<(u32, Nanos, Nanos)>, String> {
+    let mut s = raw_stream(node, info)?;
     let mut out = Vec::new();
     for _ in 0..n {
-        let (_, m) = CaptureStream::next(&mut s).map_err(|e| format!("raw dequeue: {e}"))?;
-        let now = monotonic_now();
-        let stamp = m.timestamp.sec * 1_000_000_000 + m.timestamp.usec * 1000;
-        out.push((m.flags.bits(), stamp, now));
+        let (flags, stamp) = raw_frame(&mut s)?;
+        out.push((flags, stamp, monotonic_now()));
     }
     Ok(out)
 }
 
 fn timestamps(node: &Path, info: &Info, raw: &Device) -> Check {
     let src = info.control("Timestamp Source")?;
-    let original = raw.params().map_err(|e| format!("G_PARM: {e}"))?.interval;
+    let original = raw
+        .frame_interval(info.buf)
+        .map_err(|e| format!("G_PARM: {e}"))?;
     // Half a second per frame: the windows' placement against the dequeue time then tells the
     // two timestamp sources apart despite the VM's latencies.
     let period = 500 * MS;
     let c = cfg(node, Some("YUYV"), (640, 480));
-    raw.set_format(&v4l::Format::new(640, 480, v4l::FourCC::new(b"YUYV")))
+    raw.set_format(info.buf, 640, 480, *b"YUYV")
         .map_err(|e| format!("S_FMT: {e}"))?;
+    let half = Fract {
+        numerator: 1,
+        denominator: 2,
+    };
     let p = raw
-        .set_params(&Parameters::new(Fraction::new(1, 2)))
+        .set_frame_interval(info.buf, half)
         .map_err(|e| format!("S_PARM: {e}"))?;
     ensure!(
-        (p.interval.numerator, p.interval.denominator) == (1, 2),
+        p == half,
         "vivid did not take 1/2 s per frame: {}/{}",
-        p.interval.numerator,
-        p.interval.denominator
+        p.numerator,
+        p.denominator
     );
     let result = (|| {
         for (value, name, flag) in [(0, "end of frame", 0), (1, "start of exposure", 0x1_0000)] {
             set(raw, src.id, value)?;
-            let frames = raw_frames(node, 2)?;
+            let frames = raw_frames(node, info, 2)?;
             for &(flags, stamp, now) in &frames {
                 ensure!(
                     flags & 0xe000 == 0x2000 && flags & 0x7_0000 == flag,
@@ -534,7 +558,7 @@ fn timestamps(node: &Path, info: &Info, raw: &Device) -> Check {
         Ok(())
     })();
     set(raw, src.id, 0)?;
-    raw.set_params(&Parameters::new(original))
+    raw.set_frame_interval(info.buf, original)
         .map_err(|e| format!("S_PARM: {e}"))?;
     result
 }
@@ -758,27 +782,16 @@ fn timeout(node: &Path, info: &Info, raw: &Device) -> Check {
 }
 
 fn error_frames(node: &Path, info: &Info, raw: &Device) -> Check {
-    let inject = info.control("Inject V4L2_BUF_FLAG_ERROR")?.id;
-    let press = || {
-        raw.set_control(Control {
-            id: inject,
-            value: Value::None,
-        })
-        .map_err(|e| format!("pressing Inject V4L2_BUF_FLAG_ERROR: {e}"))
-    };
+    let press = || press(raw, info, "Inject V4L2_BUF_FLAG_ERROR");
     // The driver's side: the next buffer comes back flagged.
     {
-        let dev = Device::with_path(node).map_err(|e| e.to_string())?;
-        let mut s = MmapStream::with_buffers(&dev, BufType::VideoCapture, 4)
-            .map_err(|e| format!("raw stream: {e}"))?;
-        s.set_timeout(Duration::from_secs(5));
-        CaptureStream::next(&mut s).map_err(|e| format!("raw dequeue: {e}"))?;
+        let mut s = raw_stream(node, info)?;
+        raw_frame(&mut s)?;
         press()?;
-        let (_, m) = CaptureStream::next(&mut s).map_err(|e| format!("raw dequeue: {e}"))?;
+        let (flags, _) = raw_frame(&mut s)?;
         ensure!(
-            m.flags.bits() & 0x40 != 0,
-            "vivid did not flag the buffer after the injection: 0x{:08x}",
-            m.flags.bits()
+            flags & abi::BUF_FLAG_ERROR != 0,
+            "vivid did not flag the buffer after the injection: 0x{flags:08x}"
         );
     }
     // The backend skips it: the frame after the flagged one comes back, a period later.
@@ -807,15 +820,10 @@ fn error_frames(node: &Path, info: &Info, raw: &Device) -> Check {
 }
 
 fn disconnect(node: &Path, info: &Info, raw: &Device) -> Check {
-    let button = info.control("Disconnect")?.id;
     let mut cam = open(&cfg(node, Some("YUYV"), (640, 480)))?;
     cam.focus(0, 10).map_err(|e| format!("focus: {e}"))?;
     capture(&mut cam)?;
-    raw.set_control(Control {
-        id: button,
-        value: Value::None,
-    })
-    .map_err(|e| format!("pressing Disconnect: {e}"))?;
+    press(raw, info, "Disconnect")?;
     let e = match cam.capture() {
         Ok(_) => return Err("a frame came after the device was disconnected".into()),
         Err(e) => e.to_string(),

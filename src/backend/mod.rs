@@ -4,3 +4,4 @@ pub mod iio;
 pub mod replay;
 pub mod sys;
 pub mod v4l2;
+pub mod videodev;

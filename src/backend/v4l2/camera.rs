@@ -1,27 +1,25 @@
-//! The device side, through the v4l crate: the video node, the lens control and the stream.
-//! Kept thin: the decisions are in the pure modules and in the small functions at the end.
+//! The device side, through [`crate::backend::videodev`]: the video node, the lens control and
+//! the stream. Kept thin: the decisions are in the pure modules and in the small functions at
+//! the end.
 
 use super::config::V4l2Config;
 use super::exposure::{self, SensorTiming};
 use super::format::{self, fourcc_str, PixelFormat};
 use super::lens::{self, ControlInfo, ControlKind, ControlList, ControlSpec};
 use crate::backend::sys::monotonic_now;
+use crate::backend::videodev::abi::{
+    self,
+    CAP_STREAMING,
+    CAP_VIDEO_CAPTURE,
+    CAP_VIDEO_CAPTURE_MPLANE,
+    // Continuous autofocus, switched off for the sweep (UVC webcams).
+    CID_FOCUS_AUTO,
+};
+use crate::backend::videodev::{BufType, Device, PlaneLayout, Stream};
 use crate::capture::{Camera, CaptureError, Nanos, Take};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use v4l::buffer::{Flags as BufferFlags, Type};
-use v4l::control::{Control, Flags as ControlFlags, Type as ControlType, Value};
-use v4l::io::mmap::Stream as MmapStream;
-use v4l::io::traits::{CaptureStream, Stream};
-// FOCUS_AUTO: continuous autofocus, switched off for the sweep (UVC webcams).
-use v4l::v4l_sys::{
-    V4L2_CAP_STREAMING as CAP_STREAMING, V4L2_CAP_VIDEO_CAPTURE as CAP_VIDEO_CAPTURE,
-    V4L2_CAP_VIDEO_CAPTURE_MPLANE as CAP_VIDEO_CAPTURE_MPLANE,
-    V4L2_CID_FOCUS_AUTO as CID_FOCUS_AUTO,
-};
-use v4l::video::Capture;
-use v4l::{Device, Format, FourCC};
 
 const ENODEV: i32 = 19;
 
@@ -29,26 +27,22 @@ const ENODEV: i32 = 19;
 pub struct V4l2Camera {
     node: PathBuf,
     /// `None` once released.
-    stream: Option<MmapStream<'static>>,
+    stream: Option<Stream>,
     lens: Lens,
     timing: Option<TimingSource>,
     format: PixelFormat,
     width: u32,
     height: u32,
-    stride: u32,
+    planes: Vec<PlaneLayout>,
     /// From VIDIOC_G_PARM, when the driver reports one.
     frame_interval: Option<Nanos>,
     settle: Duration,
     drop_frames: u32,
-    frame_timeout_ms: u64,
+    frame_timeout: Duration,
     /// CLOCK_MONOTONIC when the last move had settled: frames exposed from before are stale.
     settled_at: Option<Nanos>,
     /// The previous frame's timestamp, for the frame interval when the driver gives none.
     last_stamp: Option<Nanos>,
-    /// A dequeue failed (timed out) after v4l's `next` had queued the previous buffer back, so
-    /// the v4l stream's current buffer is already with the driver: the next `next` would queue
-    /// it a second time, which the driver refuses (EINVAL). See [`lost_current_buffer`].
-    resync: bool,
 }
 
 struct Lens {
@@ -75,42 +69,37 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         .map_err(|e| CaptureError::device("[camera] config", e.to_string()))?;
     let spec = ControlSpec::parse(cfg.focus_control.as_deref())
         .map_err(|e| CaptureError::device("[camera] config", format!("focus_control {e}")))?;
-    let (node, dev) = open_node(cfg)?;
+    let (node, dev, buf) = open_node(cfg)?;
     let err = |what: &str, e: io::Error| device_error(&node, what, &e);
 
-    let offered: Vec<[u8; 4]> = dev
-        .enum_formats()
-        .map_err(|e| err("cannot list its formats", e))?
-        .iter()
-        .map(|d| d.fourcc.repr)
-        .collect();
+    let offered = dev
+        .formats(buf)
+        .map_err(|e| err("cannot list its formats", e))?;
     let chosen = format::choose(&offered, cfg.format.as_deref())
         .map_err(|e| CaptureError::device(node.display().to_string(), e))?;
-    let asked = Format::new(cfg.width, cfg.height, FourCC::new(&chosen.fourcc()));
     let actual = dev
-        .set_format(&asked)
+        .set_format(buf, cfg.width, cfg.height, chosen.fourcc())
         .map_err(|e| err("cannot set the format", e))?;
-    if actual.fourcc.repr != chosen.fourcc() {
+    if actual.fourcc != chosen.fourcc() {
         return Err(CaptureError::device(
             node.display().to_string(),
             format!(
                 "asked for {}, the driver set {}",
                 fourcc_str(&chosen.fourcc()),
-                fourcc_str(&actual.fourcc.repr)
+                fourcc_str(&actual.fourcc)
             ),
         ));
     }
     let frame_interval = dev
-        .params()
+        .frame_interval(buf)
         .ok()
-        .and_then(|p| exposure::interval_ns(p.interval.numerator, p.interval.denominator));
+        .and_then(|p| exposure::interval_ns(p.numerator, p.denominator));
 
-    let mut stream = MmapStream::with_buffers(&dev, Type::VideoCapture, cfg.buffers)
+    let stream = Stream::new(dev, buf, cfg.buffers)
         .map_err(|e| err("cannot allocate the capture buffers", e))?;
-    stream.set_timeout(Duration::from_millis(cfg.frame_timeout_ms));
     // Last of what can fail: it may switch autofocus off, which only `release` undoes.
-    let lens = open_lens(cfg, &node, &dev, &spec)?;
-    let timing = timing_source(cfg, &node, &dev, &lens.path);
+    let lens = open_lens(cfg, &node, stream.device(), &spec)?;
+    let timing = timing_source(cfg, &node, stream.device(), &lens.path);
     Ok(V4l2Camera {
         node,
         stream: Some(stream),
@@ -119,14 +108,13 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         format: chosen,
         width: actual.width,
         height: actual.height,
-        stride: actual.stride,
+        planes: actual.planes,
         frame_interval,
         settle: Duration::from_millis(cfg.settle_ms),
         drop_frames: cfg.drop_frames,
-        frame_timeout_ms: cfg.frame_timeout_ms,
+        frame_timeout: Duration::from_millis(cfg.frame_timeout_ms),
         settled_at: None,
         last_stamp: None,
-        resync: false,
     })
 }
 
@@ -155,10 +143,7 @@ impl V4l2Camera {
         let l = &self.lens;
         let set = |id: u32, v: i64| {
             l.dev
-                .set_control(Control {
-                    id,
-                    value: Value::Integer(v),
-                })
+                .set_control(id, v)
                 .map_err(|e| device_error(&l.path, "cannot restore the lens", &e))
         };
         let position = set(l.id, l.original);
@@ -173,12 +158,7 @@ impl V4l2Camera {
         match stream.stop() {
             Ok(()) => Ok(()),
             Err(e) if e.raw_os_error() == Some(ENODEV) => Ok(()),
-            Err(e) => {
-                // v4l's Drop would stop it again and panic on the error: leak the buffers
-                // instead (the process is ending this capture anyway).
-                std::mem::forget(stream);
-                Err(device_error(&self.node, "cannot stop streaming", &e))
-            }
+            Err(e) => Err(device_error(&self.node, "cannot stop streaming", &e)),
         }
     }
 }
@@ -201,10 +181,7 @@ impl Camera for V4l2Camera {
         }
         self.lens
             .dev
-            .set_control(Control {
-                id: self.lens.id,
-                value: Value::Integer(position.into()),
-            })
+            .set_control(self.lens.id, position.into())
             .map_err(|e| device_error(&self.lens.path, "cannot move the lens", &e))?;
         std::thread::sleep(self.settle);
         self.settled_at = Some(monotonic_now());
@@ -233,66 +210,68 @@ impl Camera for V4l2Camera {
             if e.kind() == io::ErrorKind::TimedOut {
                 CaptureError::Timeout {
                     what: format!("{label}: waiting for a frame"),
-                    ms: self.frame_timeout_ms,
+                    ms: self.frame_timeout.as_millis() as u64,
                 }
             } else {
                 device_error(&self.node, "cannot dequeue a frame", e)
             }
         };
-        if self.resync {
-            // Take a filled buffer back first (its frame is dropped): `next` then queues that
-            // one, and the stream's bookkeeping matches the driver's again.
-            CaptureStream::dequeue(stream).map_err(|e| dequeue_error(&e))?;
-            self.resync = false;
-        }
         let mut dropped = 0u32;
         loop {
-            let (buf, meta) = match stream.next() {
-                Ok(next) => next,
-                Err(e) => {
-                    self.resync = lost_current_buffer(&e);
-                    return Err(dequeue_error(&e));
-                }
-            };
-            let stamp = exposure::timeval_ns(meta.timestamp.sec, meta.timestamp.usec);
+            let d = stream
+                .dequeue(self.frame_timeout)
+                .map_err(|e| dequeue_error(&e))?;
+            let stamp = exposure::timeval_ns(d.sec, d.usec);
             let measured = self.last_stamp.map(|t| stamp - t).filter(|&d| d > 0);
             self.last_stamp = Some(stamp);
             let window = timing
                 .exposure_ns(self.width, self.frame_interval.or(measured))
-                .map(|exp| exposure::window(meta.flags.into(), stamp, exp, readout))
-                .transpose()
-                .map_err(|e| CaptureError::device(&label, e))?;
-            let corrupt = meta.flags.contains(BufferFlags::ERROR);
-            let Some((start, end)) =
-                window.filter(|&(s, _)| !corrupt && !stale(s, self.settled_at))
-            else {
-                dropped += 1;
-                if dropped > self.drop_frames {
-                    return Err(CaptureError::device(
-                        &label,
-                        format!(
-                            "{dropped} frames in a row were corrupt or began exposing before \
-                             the lens settled: the driver's timestamps or the exposure estimate \
-                             are off (raise [camera] drop_frames if the stream is just deep)"
-                        ),
-                    ));
+                .map(|exp| exposure::window(d.flags, stamp, exp, readout))
+                .transpose();
+            let corrupt = d.flags & abi::BUF_FLAG_ERROR != 0;
+            // `None`: the frame is dropped and the next one tried.
+            let outcome = match window {
+                Err(e) => Some(Err(CaptureError::device(&label, e))),
+                Ok(Some((start, end))) if !corrupt && !stale(start, self.settled_at) => Some(
+                    format::to_rgb(
+                        self.format,
+                        self.width as usize,
+                        self.height as usize,
+                        self.planes[0].bytesperline as usize,
+                        stream.planes(&d)[0],
+                    )
+                    .map(|image| Take {
+                        image,
+                        exposure_start: start,
+                        exposure_end: end,
+                    })
+                    .map_err(|e| CaptureError::device(&label, e)),
+                ),
+                Ok(_) => {
+                    dropped += 1;
+                    (dropped > self.drop_frames).then(|| {
+                        Err(CaptureError::device(
+                            &label,
+                            format!(
+                                "{dropped} frames in a row were corrupt or began exposing \
+                                 before the lens settled: the driver's timestamps or the \
+                                 exposure estimate are off (raise [camera] drop_frames if the \
+                                 stream is just deep)"
+                            ),
+                        ))
+                    })
                 }
-                continue;
             };
-            let used = (meta.bytesused as usize).min(buf.len());
-            let image = format::to_rgb(
-                self.format,
-                self.width as usize,
-                self.height as usize,
-                self.stride as usize,
-                &buf[..used],
-            )
-            .map_err(|e| CaptureError::device(&label, e))?;
-            return Ok(Take {
-                image,
-                exposure_start: start,
-                exposure_end: end,
-            });
+            // The frame is converted (or dropped): its buffer goes back to the driver.
+            let queued = stream
+                .queue(d.index)
+                .map_err(|e| device_error(&self.node, "cannot queue a buffer back", &e));
+            match (outcome, queued) {
+                (Some(Err(e)), _) => return Err(e),
+                (_, Err(e)) => return Err(e),
+                (Some(take), Ok(())) => return take,
+                (None, Ok(())) => {}
+            }
         }
     }
 
@@ -314,19 +293,19 @@ impl Drop for V4l2Camera {
 }
 
 /// The node from `device`, else the first capture node matching `card` (or any).
-fn open_node(cfg: &V4l2Config) -> Result<(PathBuf, Device), CaptureError> {
+fn open_node(cfg: &V4l2Config) -> Result<(PathBuf, Device, BufType), CaptureError> {
     let nodes = lens::list_nodes(&cfg.sysfs_root, "video");
-    let probe = |path: &Path| -> Result<(Device, String), String> {
-        let dev = Device::with_path(path).map_err(|e| io_reason(&e))?;
+    let probe = |path: &Path| -> Result<(Device, BufType, String), String> {
+        let dev = Device::open(path).map_err(|e| io_reason(&e))?;
         let caps = dev
-            .query_caps()
+            .capabilities()
             .map_err(|e| format!("cannot query it: {}", io_reason(&e)))?;
-        capture_caps(caps.capabilities.bits())?;
-        Ok((dev, format!("{} {}", caps.card, caps.driver)))
+        let buf = capture_caps(caps.caps)?;
+        Ok((dev, buf, format!("{} {}", caps.card, caps.driver)))
     };
     if let Some(path) = &cfg.device {
         return match probe(path) {
-            Ok((dev, _)) => Ok((path.clone(), dev)),
+            Ok((dev, buf, _)) => Ok((path.clone(), dev, buf)),
             Err(reason) if !path.exists() => Err(CaptureError::device(
                 path.display().to_string(),
                 format!(
@@ -340,10 +319,12 @@ fn open_node(cfg: &V4l2Config) -> Result<(PathBuf, Device), CaptureError> {
     let mut skipped = Vec::new();
     for node in &nodes {
         match probe(&node.dev) {
-            Ok((dev, names)) if matches(cfg.card.as_deref(), &format!("{names} {}", node.name)) => {
-                return Ok((node.dev.clone(), dev));
+            Ok((dev, buf, names))
+                if matches(cfg.card.as_deref(), &format!("{names} {}", node.name)) =>
+            {
+                return Ok((node.dev.clone(), dev, buf));
             }
-            Ok((_, names)) => skipped.push(format!("{} ({names})", node.dev.display())),
+            Ok((_, _, names)) => skipped.push(format!("{} ({names})", node.dev.display())),
             Err(reason) => skipped.push(format!("{}: {reason}", node.label())),
         }
     }
@@ -371,7 +352,7 @@ fn open_lens(
     if cfg.lens.is_none() {
         let controls = controls_of(node_dev).map_err(|e| io_reason(&e));
         if let Some(c) = controls.as_ref().ok().and_then(|c| lens::pick(c, spec)) {
-            let dev = Device::with_path(node)
+            let dev = Device::open(node)
                 .map_err(|e| device_error(node, "cannot open it for the lens", &e))?;
             return Lens::new(dev, node, c, controls.as_deref().unwrap_or_default());
         }
@@ -379,7 +360,7 @@ fn open_lens(
     }
     for path in lens::lens_candidates(&cfg.sysfs_root, cfg.lens.as_deref())? {
         let label = path.display().to_string();
-        let dev = match Device::with_path(&path) {
+        let dev = match Device::open(&path) {
             Ok(dev) => dev,
             Err(e) if cfg.lens.is_some() => return Err(device_error(&path, "cannot open", &e)),
             Err(e) => {
@@ -428,16 +409,17 @@ impl Lens {
                 ))
             }
         };
-        let original = integer(&dev, c.id).map_err(|e| err("cannot read the lens position", e))?;
+        let original = dev
+            .control(c.id)
+            .map_err(|e| err("cannot read the lens position", e))?;
         let mut autofocus = None;
         if c.id == lens::CID_FOCUS_ABSOLUTE && controls.iter().any(|c| c.id == CID_FOCUS_AUTO) {
-            let on = integer(&dev, CID_FOCUS_AUTO).map_err(|e| err("cannot read autofocus", e))?;
+            let on = dev
+                .control(CID_FOCUS_AUTO)
+                .map_err(|e| err("cannot read autofocus", e))?;
             if on != 0 {
-                dev.set_control(Control {
-                    id: CID_FOCUS_AUTO,
-                    value: Value::Integer(0),
-                })
-                .map_err(|e| err("cannot switch continuous autofocus off", e))?;
+                dev.set_control(CID_FOCUS_AUTO, 0)
+                    .map_err(|e| err("cannot switch continuous autofocus off", e))?;
                 autofocus = Some(on);
             }
         }
@@ -478,14 +460,14 @@ fn timing_source(
         ids.iter().any(|id| exposure.contains(id)).then_some(ids)
     };
     if let Some(ids) = has_timing(node_dev) {
-        let dev = Device::with_path(node).ok()?;
+        let dev = Device::open(node).ok()?;
         return Some(TimingSource { dev, ids });
     }
     lens::list_nodes(&cfg.sysfs_root, "v4l-subdev")
         .into_iter()
         .filter(|n| n.dev != lens)
         .find_map(|n| {
-            let dev = Device::with_path(&n.dev).ok()?;
+            let dev = Device::open(&n.dev).ok()?;
             has_timing(&dev).map(|ids| TimingSource { dev, ids })
         })
 }
@@ -496,7 +478,7 @@ impl TimingSource {
         let get = |id: u32| {
             self.ids
                 .contains(&id)
-                .then(|| integer(&self.dev, id).ok())
+                .then(|| self.dev.control(id).ok())
                 .flatten()
         };
         SensorTiming {
@@ -508,51 +490,27 @@ impl TimingSource {
     }
 }
 
-fn integer(dev: &Device, id: u32) -> io::Result<i64> {
-    match dev.control(id)?.value {
-        Value::Integer(v) => Ok(v),
-        Value::Boolean(b) => Ok(b.into()),
-        _ => Err(io::Error::other("not an integer control")),
-    }
-}
-
-/// The device's controls. v4l reports a device without any as EINVAL.
+/// The device's controls.
 fn controls_of(dev: &Device) -> io::Result<Vec<ControlInfo>> {
-    let described = match dev.query_controls() {
-        Ok(d) => d,
-        Err(e) if e.kind() == io::ErrorKind::InvalidInput => Vec::new(),
-        Err(e) => return Err(e),
-    };
-    Ok(described
+    Ok(dev
+        .controls()?
         .into_iter()
         .map(|d| ControlInfo {
             id: d.id,
-            kind: match d.typ {
-                ControlType::Integer | ControlType::Integer64 => ControlKind::Integer,
+            kind: match d.kind {
+                abi::CTRL_TYPE_INTEGER | abi::CTRL_TYPE_INTEGER64 => ControlKind::Integer,
                 _ => ControlKind::Other,
             },
             // INACTIVE is allowed: FOCUS_ABSOLUTE is inactive while autofocus runs, which
             // `Lens::new` switches off.
-            writable: !d
-                .flags
-                .intersects(ControlFlags::DISABLED | ControlFlags::READ_ONLY),
+            writable: d.flags & (abi::CTRL_FLAG_DISABLED | abi::CTRL_FLAG_READ_ONLY) == 0,
             name: d.name,
-            min: d.minimum,
-            max: d.maximum,
+            min: d.min,
+            max: d.max,
             step: d.step,
             default: d.default,
         })
         .collect())
-}
-
-/// Whether a failed `next` of a started v4l stream left its current buffer queued with the
-/// driver: it queues the previous buffer back and then waits, so a wait that timed out or was
-/// interrupted fails after the queueing. Other errors (EIO, ENODEV) end the stream anyway.
-fn lost_current_buffer(e: &io::Error) -> bool {
-    matches!(
-        e.kind(),
-        io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
-    )
 }
 
 fn stale(exposure_start: Nanos, settled_at: Option<Nanos>) -> bool {
@@ -564,21 +522,20 @@ fn matches(card: Option<&str>, names: &str) -> bool {
     card.is_none_or(|c| names.to_lowercase().contains(&c.to_lowercase()))
 }
 
-/// Why a node with these device capabilities cannot be streamed from, if it cannot.
-fn capture_caps(caps: u32) -> Result<(), String> {
-    if caps & CAP_VIDEO_CAPTURE == 0 {
-        return Err(if caps & CAP_VIDEO_CAPTURE_MPLANE != 0 {
-            "it supports only the multi-planar capture API (rkisp1 and other ISPs), which the \
-             v4l crate focusd uses cannot stream"
-                .to_string()
-        } else {
-            "not a video capture node (an output, metadata or statistics node?)".to_string()
-        });
-    }
+/// The capture API a node with these device capabilities streams with (single-planar where
+/// it has both), or why it cannot be streamed from.
+fn capture_caps(caps: u32) -> Result<BufType, String> {
+    let buf = if caps & CAP_VIDEO_CAPTURE != 0 {
+        BufType::Capture
+    } else if caps & CAP_VIDEO_CAPTURE_MPLANE != 0 {
+        BufType::CaptureMplane
+    } else {
+        return Err("not a video capture node (an output, metadata or statistics node?)".into());
+    };
     if caps & CAP_STREAMING == 0 {
         return Err("it cannot stream (no V4L2_CAP_STREAMING)".to_string());
     }
-    Ok(())
+    Ok(buf)
 }
 
 /// An I/O error with the fix for the failures a camera meets.
@@ -613,9 +570,18 @@ mod tests {
 
     #[test]
     fn capture_capabilities_are_checked() {
-        assert_eq!(capture_caps(CAP_VIDEO_CAPTURE | CAP_STREAMING), Ok(()));
-        let e = capture_caps(CAP_VIDEO_CAPTURE_MPLANE | CAP_STREAMING).expect_err("mplane");
-        assert!(e.contains("multi-planar"), "{e}");
+        assert_eq!(
+            capture_caps(CAP_VIDEO_CAPTURE | CAP_STREAMING),
+            Ok(BufType::Capture)
+        );
+        assert_eq!(
+            capture_caps(CAP_VIDEO_CAPTURE_MPLANE | CAP_STREAMING),
+            Ok(BufType::CaptureMplane)
+        );
+        assert_eq!(
+            capture_caps(CAP_VIDEO_CAPTURE_MPLANE | CAP_VIDEO_CAPTURE | CAP_STREAMING),
+            Ok(BufType::Capture)
+        );
         assert!(capture_caps(CAP_VIDEO_CAPTURE)
             .expect_err("no streaming")
             .contains("cannot stream"));
@@ -629,18 +595,6 @@ mod tests {
         assert!(matches(None, "anything"));
         assert!(matches(Some("VIVID"), "vivid-000-vid-cap vivid"));
         assert!(!matches(Some("uvc"), "vivid-000-vid-cap vivid"));
-    }
-
-    #[test]
-    fn a_timed_out_wait_needs_a_resync() {
-        // What v4l's dequeue returns when poll() times out, and EINTR from poll or DQBUF.
-        let timeout = io::Error::new(io::ErrorKind::TimedOut, "VIDIOC_DQBUF");
-        assert!(lost_current_buffer(&timeout));
-        assert!(lost_current_buffer(&io::Error::from_raw_os_error(4)));
-        // EIO (a streaming error) and ENODEV (unplugged) end the stream; EINVAL is not a wait.
-        for errno in [5, ENODEV, 22] {
-            assert!(!lost_current_buffer(&io::Error::from_raw_os_error(errno)));
-        }
     }
 
     #[test]

@@ -74,7 +74,7 @@ impl V4l2Config {
         range("settle_ms", self.settle_ms, 0, 1000)?;
         range("buffers", self.buffers.into(), 2, 32)?;
         range("drop_frames", self.drop_frames.into(), 0, 64)?;
-        // v4l's `set_timeout` panics past i32::MAX ms; a minute is already a dead pipeline.
+        // A minute without a frame is already a dead pipeline.
         range("frame_timeout_ms", self.frame_timeout_ms, 10, 60_000)?;
         if self.drop_frames < self.buffers {
             return Err(Invalid::new(

@@ -3,12 +3,10 @@
 
 use crate::capture::Nanos;
 
-use v4l::v4l_sys::{
-    V4L2_BUF_FLAG_TIMESTAMP_MASK as TIMESTAMP_MASK,
-    V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC as TIMESTAMP_MONOTONIC,
-    V4L2_BUF_FLAG_TSTAMP_SRC_EOF as TSTAMP_SRC_EOF,
-    V4L2_BUF_FLAG_TSTAMP_SRC_MASK as TSTAMP_SRC_MASK,
-    V4L2_BUF_FLAG_TSTAMP_SRC_SOE as TSTAMP_SRC_SOE,
+use crate::backend::videodev::abi::{
+    BUF_FLAG_TIMESTAMP_MASK as TIMESTAMP_MASK, BUF_FLAG_TIMESTAMP_MONOTONIC as TIMESTAMP_MONOTONIC,
+    BUF_FLAG_TSTAMP_SRC_EOF as TSTAMP_SRC_EOF, BUF_FLAG_TSTAMP_SRC_MASK as TSTAMP_SRC_MASK,
+    BUF_FLAG_TSTAMP_SRC_SOE as TSTAMP_SRC_SOE,
 };
 
 /// A `struct timeval` in ns; generic because `time_t` is 32-bit on some 32-bit ABIs.
@@ -42,9 +40,8 @@ pub fn window(
     }
 }
 
-pub use v4l::v4l_sys::{
-    V4L2_CID_EXPOSURE as CID_EXPOSURE, V4L2_CID_EXPOSURE_ABSOLUTE as CID_EXPOSURE_ABSOLUTE,
-    V4L2_CID_HBLANK as CID_HBLANK, V4L2_CID_PIXEL_RATE as CID_PIXEL_RATE,
+pub use crate::backend::videodev::abi::{
+    CID_EXPOSURE, CID_EXPOSURE_ABSOLUTE, CID_HBLANK, CID_PIXEL_RATE,
 };
 
 /// What the sensor's controls say about its timing; each is `None` where it has no such

@@ -5,21 +5,21 @@ use crate::capture::CaptureError;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-pub use v4l::v4l_sys::V4L2_CID_FOCUS_ABSOLUTE as CID_FOCUS_ABSOLUTE;
-use v4l::v4l_sys::{
-    V4L2_CID_AUTO_FOCUS_RANGE, V4L2_CID_AUTO_FOCUS_START, V4L2_CID_AUTO_FOCUS_STATUS,
-    V4L2_CID_AUTO_FOCUS_STOP, V4L2_CID_FOCUS_AUTO, V4L2_CID_FOCUS_RELATIVE,
+pub use crate::backend::videodev::abi::CID_FOCUS_ABSOLUTE;
+use crate::backend::videodev::abi::{
+    CID_AUTO_FOCUS_RANGE, CID_AUTO_FOCUS_START, CID_AUTO_FOCUS_STATUS, CID_AUTO_FOCUS_STOP,
+    CID_FOCUS_AUTO, CID_FOCUS_RELATIVE,
 };
 
 /// The autofocus controls: a camera with only these (the original PinePhone's ov5640 with its
 /// autofocus firmware) cannot be swept.
 const AUTOFOCUS_CIDS: [u32; 6] = [
-    V4L2_CID_FOCUS_RELATIVE,
-    V4L2_CID_FOCUS_AUTO,
-    V4L2_CID_AUTO_FOCUS_START,
-    V4L2_CID_AUTO_FOCUS_STOP,
-    V4L2_CID_AUTO_FOCUS_STATUS,
-    V4L2_CID_AUTO_FOCUS_RANGE,
+    CID_FOCUS_RELATIVE,
+    CID_FOCUS_AUTO,
+    CID_AUTO_FOCUS_START,
+    CID_AUTO_FOCUS_STOP,
+    CID_AUTO_FOCUS_STATUS,
+    CID_AUTO_FOCUS_RANGE,
 ];
 
 /// Voice-coil lens drivers in the kernel, by the name their sub-device gets.

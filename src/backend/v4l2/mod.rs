@@ -3,7 +3,8 @@
 //! Everything that needs no device is in pure modules, tested with synthetic buffers and fake
 //! sysfs trees: [`format`] (choosing and converting pixel formats), [`exposure`] (the exposure
 //! window from buffer timestamps and sensor controls), [`lens`] (finding nodes and the lens
-//! control), [`config`]. [`camera`] is the thin layer over the v4l crate.
+//! control), [`config`]. [`camera`] is the thin layer over
+//! [`crate::backend::videodev`].
 
 pub mod camera;
 pub mod config;

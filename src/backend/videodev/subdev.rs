@@ -1,0 +1,54 @@
+//! V4L2 sub-device pads: the media-bus format and the crop of each pad, which must agree along
+//! every enabled link of a media pipeline before it streams.
+
+use super::abi::{self, zeroed, MbusFramefmt, Rect};
+use super::device::Device;
+use rustix::ioctl::Opcode;
+use std::io;
+
+/// The active format on `pad`.
+pub fn format(dev: &Device, pad: u32) -> io::Result<MbusFramefmt> {
+    pad_format::<{ abi::VIDIOC_SUBDEV_G_FMT }>(dev, pad, MbusFramefmt::default())
+}
+
+/// Sets the active format on `pad`; the driver adjusts what it cannot do and says what it set.
+pub fn set_format(dev: &Device, pad: u32, format: MbusFramefmt) -> io::Result<MbusFramefmt> {
+    pad_format::<{ abi::VIDIOC_SUBDEV_S_FMT }>(dev, pad, format)
+}
+
+/// The active crop rectangle on `pad`.
+pub fn crop(dev: &Device, pad: u32) -> io::Result<Rect> {
+    pad_crop::<{ abi::VIDIOC_SUBDEV_G_SELECTION }>(dev, pad, Rect::default())
+}
+
+/// Sets the active crop rectangle on `pad`; returns the rectangle the driver set.
+pub fn set_crop(dev: &Device, pad: u32, r: Rect) -> io::Result<Rect> {
+    pad_crop::<{ abi::VIDIOC_SUBDEV_S_SELECTION }>(dev, pad, r)
+}
+
+/// VIDIOC_SUBDEV_G_FMT or S_FMT (`OP`) on the active format of `pad`.
+fn pad_format<const OP: Opcode>(
+    dev: &Device,
+    pad: u32,
+    format: MbusFramefmt,
+) -> io::Result<MbusFramefmt> {
+    let mut f: abi::SubdevFormat = zeroed();
+    f.which = abi::SUBDEV_FORMAT_ACTIVE;
+    f.pad = pad;
+    f.format = format;
+    // SAFETY: both opcodes take a v4l2_subdev_format.
+    unsafe { dev.ioctl::<OP, _>(&mut f)? };
+    Ok(f.format)
+}
+
+/// VIDIOC_SUBDEV_G_SELECTION or S_SELECTION (`OP`) on the active crop of `pad`.
+fn pad_crop<const OP: Opcode>(dev: &Device, pad: u32, r: Rect) -> io::Result<Rect> {
+    let mut s: abi::SubdevSelection = zeroed();
+    s.which = abi::SUBDEV_FORMAT_ACTIVE;
+    s.pad = pad;
+    s.target = abi::SEL_TGT_CROP;
+    s.r = r;
+    // SAFETY: both opcodes take a v4l2_subdev_selection.
+    unsafe { dev.ioctl::<OP, _>(&mut s)? };
+    Ok(s.r)
+}
