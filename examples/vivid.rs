@@ -7,6 +7,11 @@
 //!
 //! vivid has no focus control, so the sweep drives `Brightness` instead (`focus_control`), which
 //! also makes every move visible in the frames.
+//!
+//! A node of vivid loaded with `multiplanar=2` (its capture node has only the multi-planar API)
+//! gets the checks that go through that API: YUYV (one plane), NV12 (one plane) and NM12 (luma
+//! and chroma in two planes), streaming, timestamps, the control put back, stale frames dropped
+//! and a whole sweep.
 
 use focusd::backend::sys::{monotonic_now, MonotonicClock};
 use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
@@ -88,10 +93,35 @@ fn run(node: &Path) -> Check {
     let raw = Device::open(node).map_err(|e| format!("{}: {e}", node.display()))?;
     set(&raw, brightness.id, brightness.default)?;
 
+    if info.buf == BufType::CaptureMplane {
+        formats(node, &info, &raw, &["YUYV", "NV12", "NM12"], &[(640, 480)])?;
+        streaming(node)?;
+        timestamps(node, &info, &raw)?;
+        lens_restored(node, &raw, brightness.id, range)?;
+        stale_frames_dropped(node, range)?;
+        whole_sweep(node, range)?;
+        return set(&raw, brightness.id, brightness.default);
+    }
+    ensure!(
+        !info.formats.iter().any(|f| f == "NM12"),
+        "the single-planar node offers the two-plane NM12: {:?}",
+        info.formats
+    );
     no_focus_control(node)?;
     open_by_card()?;
     lens_is_the_control(node, range)?;
-    formats(node, &info, &raw)?;
+    let mut wanted: Vec<&str> = vec!["YUYV", "UYVY", "RGB3", "NV12"];
+    wanted.extend(
+        BAYER
+            .iter()
+            .filter(|b| info.formats.iter().any(|f| f == *b)),
+    );
+    ensure!(
+        wanted.len() > 4,
+        "vivid offers none of the Bayer formats {BAYER:?}: {:?}",
+        info.formats
+    );
+    formats(node, &info, &raw, &wanted, &[(640, 480), (320, 240)])?;
     streaming(node)?;
     timestamps(node, &info, &raw)?;
     lens_restored(node, &raw, brightness.id, range)?;
@@ -339,20 +369,11 @@ fn lens_is_the_control(node: &Path, range: (i32, i32)) -> Check {
     Ok(())
 }
 
-fn formats(node: &Path, info: &Info, raw: &Device) -> Check {
-    let mut wanted: Vec<&str> = vec!["YUYV", "UYVY", "RGB3", "NV12"];
-    wanted.extend(
-        BAYER
-            .iter()
-            .filter(|b| info.formats.iter().any(|f| f == *b)),
-    );
-    ensure!(
-        wanted.len() > 4,
-        "vivid offers none of the Bayer formats {BAYER:?}: {:?}",
-        info.formats
-    );
-    for size in [(640, 480), (320, 240)] {
-        for f in &wanted {
+/// Each of `wanted` at each of `sizes` through the backend: the negotiated format and its
+/// memory planes (two for NM12, luma then half-height chroma), the frame, the colour bars.
+fn formats(node: &Path, info: &Info, raw: &Device, wanted: &[&str], sizes: &[(u32, u32)]) -> Check {
+    for &size in sizes {
+        for f in wanted {
             ensure!(
                 info.formats.iter().any(|o| o == f),
                 "vivid does not offer {f}: {:?}",
@@ -367,6 +388,28 @@ fn formats(node: &Path, info: &Info, raw: &Device) -> Check {
                 fourcc == *f,
                 "{f}: the driver's format is {fourcc} after open"
             );
+            let planes: Vec<(u32, u32)> = g
+                .planes
+                .iter()
+                .map(|p| (p.bytesperline, p.sizeimage))
+                .collect();
+            if *f == "NM12" {
+                let (w, h) = (g.width, g.height);
+                ensure!(
+                    planes.len() == 2
+                        && planes[0].0 >= w
+                        && planes[0].1 >= planes[0].0 * h
+                        && planes[1].1 >= planes[1].0 * h / 2,
+                    "NM12 {w}x{h}: planes (bytes per line, size) {planes:?}, expected luma and \
+                     half-height chroma"
+                );
+            } else {
+                ensure!(
+                    planes.len() == 1,
+                    "{f}: {} memory planes {planes:?}",
+                    planes.len()
+                );
+            }
             ensure!(
                 (img.width, img.height, img.channels) == (g.width as usize, g.height as usize, 3),
                 "{f} {size:?}: frame {}x{}x{}, the driver negotiated {}x{}",
@@ -397,14 +440,14 @@ fn formats(node: &Path, info: &Info, raw: &Device) -> Check {
             );
             cam.release().map_err(|e| format!("release: {e}"))?;
             ok(format!(
-                "{f} asked {}x{}: negotiated {}x{} stride {} (sizeimage {}), RGB frame of that \
-                 size, 8 colour bars right (white {:?}, red {:?}, blue {:?}), mean luma {luma:.1}",
+                "{f} asked {}x{}: negotiated {}x{} in {} plane(s) (bytes per line, size) \
+                 {planes:?}, RGB frame of that size, 8 colour bars right (white {:?}, red {:?}, \
+                 blue {:?}), mean luma {luma:.1}",
                 size.0,
                 size.1,
                 g.width,
                 g.height,
-                g.planes[0].bytesperline,
-                g.planes[0].sizeimage,
+                planes.len(),
                 bars[0],
                 bars[5],
                 bars[6]

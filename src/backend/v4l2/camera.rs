@@ -233,12 +233,16 @@ impl Camera for V4l2Camera {
             let outcome = match window {
                 Err(e) => Some(Err(CaptureError::device(&label, e))),
                 Ok(Some((start, end))) if !corrupt && !stale(start, self.settled_at) => Some(
-                    format::to_rgb(
+                    format::to_rgb_planes(
                         self.format,
                         self.width as usize,
                         self.height as usize,
-                        self.planes[0].bytesperline as usize,
-                        stream.planes(&d)[0],
+                        &stream
+                            .planes(&d)
+                            .into_iter()
+                            .zip(&self.planes)
+                            .map(|(bytes, p)| (bytes, p.bytesperline as usize))
+                            .collect::<Vec<_>>(),
                     )
                     .map(|image| Take {
                         image,

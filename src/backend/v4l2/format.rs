@@ -30,16 +30,19 @@ pub enum PixelFormat {
     Yuyv,
     Uyvy,
     Nv12,
+    /// NV12 with luma and chroma in two memory planes (`NM12`, multi-planar API only).
+    Nv12m,
     Mjpg,
     Rgb3,
     Bayer(BayerOrder),
 }
 
-const ALL: [PixelFormat; 9] = [
+const ALL: [PixelFormat; 10] = [
     PixelFormat::Rgb3,
     PixelFormat::Yuyv,
     PixelFormat::Uyvy,
     PixelFormat::Nv12,
+    PixelFormat::Nv12m,
     PixelFormat::Mjpg,
     PixelFormat::Bayer(BayerOrder::Bggr),
     PixelFormat::Bayer(BayerOrder::Gbrg),
@@ -57,6 +60,7 @@ impl PixelFormat {
             PixelFormat::Yuyv => b"YUYV",
             PixelFormat::Uyvy => b"UYVY",
             PixelFormat::Nv12 => b"NV12",
+            PixelFormat::Nv12m => b"NM12",
             PixelFormat::Mjpg => b"MJPG",
             PixelFormat::Rgb3 => b"RGB3",
             PixelFormat::Bayer(BayerOrder::Bggr) => b"BA81",
@@ -82,7 +86,7 @@ impl PixelFormat {
         match self {
             PixelFormat::Rgb3 => 0,
             PixelFormat::Yuyv | PixelFormat::Uyvy => 1,
-            PixelFormat::Nv12 => 2,
+            PixelFormat::Nv12 | PixelFormat::Nv12m => 2,
             PixelFormat::Mjpg => 3,
             PixelFormat::Bayer(_) => 4,
         }
@@ -178,8 +182,86 @@ fn yuv_to_rgb(y: u8, u: u8, v: u8) -> [u8; 3] {
     ]
 }
 
-/// One frame of `fmt` as 8-bit RGB. `stride` is the driver's bytes per line (0: packed); for
-/// NV12 it applies to both planes. A buffer too short for the geometry is an error.
+/// One frame in memory planes (the multi-planar API's buffers, each with its own bytes per
+/// line) as 8-bit RGB: NM12's luma and chroma planes, or any format's single plane.
+pub fn to_rgb_planes(
+    fmt: PixelFormat,
+    width: usize,
+    height: usize,
+    planes: &[(&[u8], usize)],
+) -> Result<Image<u8>, String> {
+    match (fmt, planes) {
+        (PixelFormat::Nv12m, &[(luma, luma_stride), (chroma, chroma_stride)]) => {
+            let name = fourcc_str(&fmt.fourcc());
+            let (luma_stride, chroma_stride) = nv12_layout(
+                &name,
+                width,
+                height,
+                (luma, luma_stride),
+                (chroma, chroma_stride),
+            )?;
+            let mut out = Vec::with_capacity(width * height * 3);
+            nv12(
+                width,
+                height,
+                (luma, luma_stride),
+                (chroma, chroma_stride),
+                &mut out,
+            );
+            Ok(Image::from_vec(width, height, 3, out))
+        }
+        (PixelFormat::Nv12m, _) => Err(format!(
+            "NM12: {} memory planes, 2 expected (luma and chroma)",
+            planes.len()
+        )),
+        (_, &[(bytes, stride)]) => to_rgb(fmt, width, height, stride, bytes),
+        _ => Err(format!(
+            "{}: {} memory planes, 1 expected",
+            fourcc_str(&fmt.fourcc()),
+            planes.len()
+        )),
+    }
+}
+
+/// Checks NV12's luma and chroma planes (`width` bytes by `height` and `height / 2` lines) and
+/// returns their strides.
+fn nv12_layout(
+    name: &str,
+    width: usize,
+    height: usize,
+    (luma, luma_stride): (&[u8], usize),
+    (chroma, chroma_stride): (&[u8], usize),
+) -> Result<(usize, usize), String> {
+    if width % 2 != 0 || height % 2 != 0 {
+        return Err(format!("{name}: odd frame size {width}x{height}"));
+    }
+    Ok((
+        check_layout(name, width, luma_stride, height, 0, luma)?,
+        check_layout(name, width, chroma_stride, height / 2, 0, chroma)?,
+    ))
+}
+
+/// NV12 to RGB: full-resolution luma, one U,V pair per 2×2 pixels.
+fn nv12(
+    width: usize,
+    height: usize,
+    (luma, luma_stride): (&[u8], usize),
+    (chroma, chroma_stride): (&[u8], usize),
+    out: &mut Vec<u8>,
+) {
+    for y in 0..height {
+        let l = &luma[y * luma_stride..][..width];
+        let c = &chroma[(y / 2) * chroma_stride..][..width];
+        for (x, &v) in l.iter().enumerate() {
+            let x = x & !1;
+            out.extend_from_slice(&yuv_to_rgb(v, c[x], c[x + 1]));
+        }
+    }
+}
+
+/// One frame of `fmt` in one buffer as 8-bit RGB. `stride` is the driver's bytes per line (0:
+/// packed); for NV12 (and NM12's planes laid end to end) it applies to both planes. A buffer
+/// too short for the geometry is an error.
 pub fn to_rgb(
     fmt: PixelFormat,
     width: usize,
@@ -217,21 +299,11 @@ pub fn to_rgb(
                 }
             }
         }
-        PixelFormat::Nv12 => {
-            if width % 2 != 0 || height % 2 != 0 {
-                return Err(format!("{name}: odd frame size {width}x{height}"));
-            }
-            let stride = check_layout(&name, width, stride, height, 0, bytes)?;
-            let uv_at = stride * height;
-            check_layout(&name, width, stride, height / 2, uv_at, bytes)?;
-            for y in 0..height {
-                let luma = &bytes[y * stride..][..width];
-                let chroma = &bytes[uv_at + (y / 2) * stride..][..width];
-                for (x, &l) in luma.iter().enumerate() {
-                    let c = x & !1;
-                    out.extend_from_slice(&yuv_to_rgb(l, chroma[c], chroma[c + 1]));
-                }
-            }
+        PixelFormat::Nv12 | PixelFormat::Nv12m => {
+            let stride = if stride == 0 { width } else { stride };
+            let (luma, chroma) = bytes.split_at(bytes.len().min(stride * height));
+            nv12_layout(&name, width, height, (luma, stride), (chroma, stride))?;
+            nv12(width, height, (luma, stride), (chroma, stride), &mut out);
         }
         PixelFormat::Mjpg => {
             let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
@@ -433,6 +505,28 @@ mod tests {
         let e = to_rgb(PixelFormat::Nv12, w, h, stride, &b[..stride * h + 3])
             .expect_err("no chroma plane");
         assert!(e.contains("too short"), "{e}");
+        // The same frame in two memory planes (NM12), each with its own stride.
+        let (luma, chroma) = b.split_at(stride * h);
+        let packed: Vec<u8> = chroma
+            .chunks(stride)
+            .flat_map(|r| &r[..w])
+            .copied()
+            .collect();
+        let planes = [(luma, stride), (&packed[..], w)];
+        let img2 = to_rgb_planes(PixelFormat::Nv12m, w, h, &planes).expect("converts");
+        assert_eq!(img2.data, img.data);
+        let e = to_rgb_planes(PixelFormat::Nv12m, w, h, &planes[..1]).expect_err("one plane");
+        assert!(e.contains("1 memory planes, 2 expected"), "{e}");
+        let e = to_rgb_planes(PixelFormat::Nv12m, w, h, &[planes[0], (&packed[..5], w)])
+            .expect_err("short chroma");
+        assert!(e.contains("too short"), "{e}");
+        // A one-plane format through the planes API is the single-buffer conversion.
+        let yuyv = [126u8, 128, 126, 128];
+        assert_eq!(
+            to_rgb_planes(PixelFormat::Yuyv, 2, 1, &[(&yuyv[..], 4)]),
+            to_rgb(PixelFormat::Yuyv, 2, 1, 4, &yuyv)
+        );
+        assert!(to_rgb_planes(PixelFormat::Yuyv, 2, 1, &planes).is_err());
     }
 
     #[test]
