@@ -23,20 +23,9 @@ use focusd::stack::image::Image;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-type Check = Result<(), String>;
-
-macro_rules! ensure {
-    ($cond:expr, $($fmt:tt)+) => {
-        let holds: bool = $cond;
-        if !holds {
-            return Err(format!($($fmt)+));
-        }
-    };
-}
-
-fn ok(what: impl AsRef<str>) {
-    println!("ok: {}", what.as_ref());
-}
+#[macro_use]
+mod support;
+use support::{ok, report, Check};
 
 const MS: Nanos = 1_000_000;
 const BAYER: [&str; 4] = ["RGGB", "BA81", "GBRG", "GRBG"];
@@ -47,22 +36,7 @@ fn main() {
             .nth(1)
             .unwrap_or_else(|| "/dev/video0".into()),
     );
-    let result = std::panic::catch_unwind(|| run(&node)).unwrap_or_else(|p| {
-        let msg = p
-            .downcast_ref::<String>()
-            .cloned()
-            .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-            .unwrap_or_default();
-        Err(format!("panicked: {msg}"))
-    });
-    match result {
-        Ok(()) => println!("VIVID-RESULT: PASS"),
-        Err(e) => {
-            println!("FAIL: {e}");
-            println!("VIVID-RESULT: FAIL");
-            std::process::exit(1);
-        }
-    }
+    report("VIVID", || run(&node));
 }
 
 /// What the raw device says, through the videodev layer (not the camera backend).
@@ -479,9 +453,12 @@ fn streaming(node: &Path) -> Check {
                 "frame {i} starts at {s}, before frame {} ({ps})",
                 i - 1
             );
+            // Under TCG on a loaded host vivid's frame thread runs tens of ms late or early,
+            // and its stamps with it (seen: 42 ms of a 200 ms window): a misread timestamp
+            // source or clock would be off by most of a period, not by that.
             ensure!(
-                s >= pe - (e - s) / 5,
-                "frame {i} [{s}, {e}] overlaps frame {} [{ps}, {pe}] by more than a fifth",
+                s >= pe - (e - s) / 2,
+                "frame {i} [{s}, {e}] overlaps frame {} [{ps}, {pe}] by more than half",
                 i - 1
             );
         }
@@ -490,7 +467,7 @@ fn streaming(node: &Path) -> Check {
     }
     cam.release().map_err(|e| format!("release: {e}"))?;
     ok(format!(
-        "mmap streaming: 6 frames in a row, increasing and disjoint windows on CLOCK_MONOTONIC \
+        "mmap streaming: 6 frames in a row, increasing windows (overlapping by at most half) on CLOCK_MONOTONIC \
          (lengths {lengths:?} us)"
     ));
     Ok(())
@@ -748,12 +725,12 @@ fn whole_sweep(node: &Path, range: (i32, i32)) -> Check {
         );
     }
     // As in `streaming`: vivid's end-of-frame stamps lie 0.9 nominal periods after the frame's
-    // (jittery) start, so neighbours may overlap by a little.
+    // (jittery) start, so neighbours may overlap by a little (up to half under a loaded TCG).
     for w in s.frames.windows(2) {
         let len = w[0].exposure_end - w[0].exposure_start;
         ensure!(
             w[1].exposure_start > w[0].exposure_start
-                && w[1].exposure_start >= w[0].exposure_end - len / 5,
+                && w[1].exposure_start >= w[0].exposure_end - len / 2,
             "sweep frames overlap: [{}, {}] then [{}, {}]",
             w[0].exposure_start,
             w[0].exposure_end,

@@ -6,6 +6,8 @@ use super::config::V4l2Config;
 use super::exposure::{self, SensorTiming};
 use super::format::{self, fourcc_str, PixelFormat};
 use super::lens::{self, ControlInfo, ControlKind, ControlList, ControlSpec};
+use super::pipeline;
+use super::profile::Profile;
 use crate::backend::sys::monotonic_now;
 use crate::backend::videodev::abi::{
     self,
@@ -22,6 +24,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 const ENODEV: i32 = 19;
+const EPIPE: i32 = 32;
 
 /// A V4L2 capture node streaming memory-mapped buffers, and the control that moves its lens.
 pub struct V4l2Camera {
@@ -69,6 +72,27 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         .map_err(|e| CaptureError::device("[camera] config", e.to_string()))?;
     let spec = ControlSpec::parse(cfg.focus_control.as_deref())
         .map_err(|e| CaptureError::device("[camera] config", format!("focus_control {e}")))?;
+    let profiled;
+    let cfg = match &cfg.profile {
+        None => cfg,
+        Some(name) => {
+            let profile =
+                Profile::load(name).map_err(|e| CaptureError::device("[camera] profile", e))?;
+            let p = pipeline::apply(&profile, &cfg.sysfs_root)?;
+            profiled = V4l2Config {
+                device: Some(p.capture),
+                format: Some(profile.format.fourcc),
+                width: profile.format.width,
+                height: profile.format.height,
+                lens: cfg
+                    .lens
+                    .clone()
+                    .or_else(|| p.lens.map(|l| l.display().to_string())),
+                ..cfg.clone()
+            };
+            &profiled
+        }
+    };
     let (node, dev, buf) = open_node(cfg)?;
     let err = |what: &str, e: io::Error| device_error(&node, what, &e);
 
@@ -87,6 +111,16 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
                 "asked for {}, the driver set {}",
                 fourcc_str(&chosen.fourcc()),
                 fourcc_str(&actual.fourcc)
+            ),
+        ));
+    }
+    if cfg.profile.is_some() && (actual.width, actual.height) != (cfg.width, cfg.height) {
+        // The capture node's size must equal its source pad's, or the stream fails with EPIPE.
+        return Err(CaptureError::device(
+            node.display().to_string(),
+            format!(
+                "the profile's capture size is {}x{}, the driver set {}x{}",
+                cfg.width, cfg.height, actual.width, actual.height
             ),
         ));
     }
@@ -553,6 +587,10 @@ fn io_reason(e: &io::Error) -> String {
         io::ErrorKind::ResourceBusy => format!(
             "{e}: another program (a camera app, PipeWire/WirePlumber) is using the camera; \
              close it"
+        ),
+        _ if e.raw_os_error() == Some(EPIPE) => format!(
+            "{e}: the media pipeline cannot stream: its links or pad formats do not match the \
+             capture format (set [camera] profile to the device's profile, or correct it)"
         ),
         _ if e.raw_os_error() == Some(ENODEV) => {
             format!("{e}: the device went away (unplugged, or its driver was unbound)")

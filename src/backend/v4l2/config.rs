@@ -12,6 +12,12 @@ pub struct V4l2Config {
     /// The video node, e.g. `/dev/video1`. Phones have several (ISP paths, statistics,
     /// parameters), so naming one is the reliable way; unset: found by `card`.
     pub device: Option<PathBuf>,
+    /// A device profile (`config/devices/`): a shipped one by name (`vimc`) or a `.toml` path.
+    /// It sets the media pipeline up before streaming (links, pad formats) and gives the
+    /// capture node, its format and size, and the lens through the media graph; `device`,
+    /// `format`, `width` and `height` are then the profile's, and `lens` (when set) overrides
+    /// the graph's. Unset: no media-controller set-up (USB cameras, vivid).
+    pub profile: Option<String>,
     /// Without `device`: the first capture node whose card or driver name (`query_caps`) or
     /// sysfs name contains this, case-insensitively; neither set: the first capture node.
     pub card: Option<String>,
@@ -56,6 +62,7 @@ impl Default for V4l2Config {
             height: 720,
             format: None,
             lens: None,
+            profile: None,
             focus_control: None,
             settle_ms: 20,
             drop_frames: 6,
@@ -102,6 +109,7 @@ impl V4l2Config {
         empty("device", self.device.as_ref().and_then(|p| p.to_str()))?;
         empty("card", self.card.as_deref())?;
         empty("lens", self.lens.as_deref())?;
+        empty("profile", self.profile.as_deref())?;
         Ok(())
     }
 }

@@ -11,6 +11,8 @@ pub mod config;
 pub mod exposure;
 pub mod format;
 pub mod lens;
+pub mod pipeline;
+pub mod profile;
 
 pub use camera::{open, V4l2Camera};
 pub use config::V4l2Config;

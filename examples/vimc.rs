@@ -1,0 +1,373 @@
+//! The media-controller path against the kernel's vimc test driver: run inside a VM by
+//! `tests/kernel/run-vimc` (vimc built out of tree; any machine with `modprobe vimc`, as root).
+//!
+//! `vimc` (no arguments). One `ok: ...` line per passed check, `FAIL: ...` at the first failed
+//! one, then `VIMC-RESULT: PASS` or `VIMC-RESULT: FAIL` (exit status 0 or 1). Checks, in order
+//! (the first needs vimc as loaded, unconfigured):
+//! - an unconfigured pipeline fails to stream with EPIPE, and the error says why;
+//! - profiles that do not match the graph fail naming the link or the pad;
+//! - the shipped `vimc` profile streams RGB through debayer and scaler, a variant of it the raw
+//!   Bayer path, another a scaled frame;
+//! - the lens is found through the graph (Lens A, ancillary link to Sensor A), swept across a
+//!   whole capture with its position read back at every plane, and restored; the IMU is a fake
+//!   IIO tree polled on the guest's monotonic clock.
+
+use focusd::backend::iio::{IioConfig, IioImu, Mode};
+use focusd::backend::sys::{monotonic_now, MonotonicClock};
+use focusd::backend::v4l2::pipeline;
+use focusd::backend::v4l2::profile::{LinkSpec, PadRef, PadSpec, Profile};
+use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
+use focusd::backend::videodev::abi::CID_FOCUS_ABSOLUTE;
+use focusd::backend::videodev::Device;
+use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
+use focusd::capture::{Camera, CaptureError, Imu, Sensor, Take};
+use focusd::stack::image::Image;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+#[macro_use]
+mod support;
+use support::{ok, report, Check};
+
+const TMP: &str = "/tmp/focusd-vimc";
+
+fn main() {
+    report("VIMC", run);
+}
+
+fn run() -> Check {
+    fs::create_dir_all(TMP).map_err(|e| format!("{TMP}: {e}"))?;
+    unconfigured()?;
+    mismatches()?;
+    let rgb = streams("RGB through debayer and scaler", shipped()?, (640, 480))?;
+    let mut raw = shipped()?;
+    raw.capture = "Raw Capture 0".into();
+    raw.format.fourcc = "RGGB".into();
+    streams("raw Bayer (RGGB)", raw, (640, 480))?;
+    let mut scaled = shipped()?;
+    scaled.pads.last_mut().expect("pads").width = 320;
+    scaled.pads.last_mut().expect("pads").height = 240;
+    scaled.format.width = 320;
+    scaled.format.height = 240;
+    streams("RGB scaled to 320x240", scaled, (320, 240))?;
+    lens_sweep(&rgb)
+}
+
+fn shipped() -> Result<Profile, String> {
+    Profile::load("vimc")
+}
+
+/// The device node whose sysfs name is `name`.
+fn node(name: &str) -> Result<PathBuf, String> {
+    let dir = Path::new("/sys/class/video4linux");
+    let entries = fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    for e in entries.flatten() {
+        let n = fs::read_to_string(e.path().join("name")).unwrap_or_default();
+        if n.trim() == name {
+            return Ok(Path::new("/dev").join(e.file_name()));
+        }
+    }
+    Err(format!("no video4linux node is named {name:?}"))
+}
+
+/// A profile written to a file, as a user would give it.
+fn write_profile(p: &Profile, file: &str) -> Result<String, String> {
+    let path = format!("{TMP}/{file}.toml");
+    let text = toml::to_string(p).map_err(|e| format!("serialising the profile: {e}"))?;
+    fs::write(&path, text).map_err(|e| format!("{path}: {e}"))?;
+    Ok(path)
+}
+
+fn cfg(profile: Option<String>) -> V4l2Config {
+    V4l2Config {
+        profile,
+        ..V4l2Config::default()
+    }
+}
+
+fn capture(cam: &mut V4l2Camera) -> Result<Take, String> {
+    cam.capture().map_err(|e| format!("capture: {e}"))
+}
+
+fn luma_spread(img: &Image<u8>) -> f64 {
+    let l: Vec<f64> = img
+        .data
+        .chunks_exact(3)
+        .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
+        .collect();
+    let mean = l.iter().sum::<f64>() / l.len() as f64;
+    (l.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / l.len() as f64).sqrt()
+}
+
+// ---------------------------------------------------------------------------------------------
+
+fn unconfigured() -> Check {
+    let c = V4l2Config {
+        device: Some(node("Raw Capture 0")?),
+        lens: Some("Lens A".into()),
+        format: Some("RGGB".into()),
+        width: 640,
+        height: 480,
+        ..V4l2Config::default()
+    };
+    let mut cam = v4l2::open(&c).map_err(|e| format!("open without a profile: {e}"))?;
+    let e = match cam.capture() {
+        Ok(_) => return Err("an unconfigured vimc pipeline streamed".into()),
+        Err(e) => e.to_string(),
+    };
+    ensure!(
+        e.contains("os error 32") && e.contains("media pipeline cannot stream"),
+        "unconfigured: expected EPIPE with the reason, got: {e}"
+    );
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok(format!("an unconfigured pipeline does not stream: {e}"));
+    Ok(())
+}
+
+fn expect_error(p: &Profile, file: &str, want: &str) -> Check {
+    let path = write_profile(p, file)?;
+    match v4l2::open(&cfg(Some(path))) {
+        Ok(_) => Err(format!(
+            "profile {file} opened; expected an error with {want:?}"
+        )),
+        Err(e) => {
+            let msg = e.to_string();
+            ensure!(
+                msg.contains(want),
+                "profile {file}: expected {want:?} in the error, got: {msg}"
+            );
+            ok(format!("profile {file}: {msg}"));
+            Ok(())
+        }
+    }
+}
+
+fn mismatches() -> Check {
+    let mut p = shipped()?;
+    p.links.push(LinkSpec {
+        source: PadRef("Sensor A".into(), 0),
+        sink: PadRef("Scaler".into(), 0),
+    });
+    expect_error(
+        &p,
+        "no-such-link",
+        "link \"Sensor A\":0 -> \"Scaler\":0: the graph has no such link",
+    )?;
+    let mut p = shipped()?;
+    p.pads[0].pad = PadRef("Sensor Z".into(), 0);
+    expect_error(
+        &p,
+        "no-such-entity",
+        "pad \"Sensor Z\":0: no entity is named \"Sensor Z\"",
+    )?;
+    let mut p = shipped()?;
+    p.pads.push(PadSpec {
+        pad: PadRef("Scaler".into(), 1),
+        code: "SRGGB8_1X8".into(),
+        width: 640,
+        height: 480,
+        crop: None,
+    });
+    expect_error(
+        &p,
+        "wrong-code",
+        "pad \"Scaler\":1: asked for SRGGB8_1X8/640x480, the driver set RGB888_1X24/640x480",
+    )?;
+    let mut p = shipped()?;
+    p.media_model = "rkisp1".into();
+    expect_error(
+        &p,
+        "other-device",
+        "no media device has the model \"rkisp1\"",
+    )
+}
+
+/// Streams three frames with `profile`; returns its file path.
+fn streams(what: &str, profile: Profile, size: (usize, usize)) -> Result<String, String> {
+    let path = write_profile(&profile, &what.replace([' ', '(', ')'], "-"))?;
+    let mut cam = v4l2::open(&cfg(Some(path.clone()))).map_err(|e| format!("{what}: open: {e}"))?;
+    let d = cam.describe();
+    let mut spreads = Vec::new();
+    for _ in 0..3 {
+        let t = capture(&mut cam).map_err(|e| format!("{what}: {e}"))?;
+        ensure!(
+            (t.image.width, t.image.height) == size,
+            "{what}: frame {}x{}, expected {size:?}",
+            t.image.width,
+            t.image.height
+        );
+        spreads.push(luma_spread(&t.image));
+    }
+    cam.release().map_err(|e| format!("{what}: release: {e}"))?;
+    ensure!(
+        spreads.iter().all(|&s| s > 20.0),
+        "{what}: flat frames (luma spread {spreads:.1?}): not the test pattern"
+    );
+    ok(format!(
+        "{what}: {d}: 3 frames of {size:?} with the test pattern (luma spread {spreads:.0?})"
+    ));
+    Ok(path)
+}
+
+/// A fake IIO device at rest, polled: its samples are stamped when read, on this machine's
+/// CLOCK_MONOTONIC, the clock of the V4L2 buffers.
+fn fake_imu() -> Result<IioConfig, String> {
+    let sys = PathBuf::from(TMP).join("sys");
+    let d = sys.join("bus/iio/devices/iio:device0");
+    fs::create_dir_all(&d).map_err(|e| format!("{}: {e}", d.display()))?;
+    fs::create_dir_all(PathBuf::from(TMP).join("dev")).map_err(|e| e.to_string())?;
+    let files = [
+        ("name", "fakeimu"),
+        ("in_anglvel_x_raw", "0"),
+        ("in_anglvel_y_raw", "0"),
+        ("in_anglvel_z_raw", "0"),
+        ("in_anglvel_scale", "0.001"),
+        ("in_accel_x_raw", "0"),
+        ("in_accel_y_raw", "1000"),
+        ("in_accel_z_raw", "0"),
+        ("in_accel_scale", "0.00981"),
+        ("sampling_frequency", "100"),
+    ];
+    for (f, v) in files {
+        fs::write(d.join(f), format!("{v}\n")).map_err(|e| format!("{f}: {e}"))?;
+    }
+    Ok(IioConfig {
+        sysfs_root: sys,
+        mode: Mode::Poll,
+        ..IioConfig::default()
+    })
+}
+
+/// The camera with the lens position read back from the lens sub-device after every move.
+struct ReadBack {
+    cam: V4l2Camera,
+    lens: Device,
+    seen: Vec<(i32, i64)>,
+}
+
+impl Camera for ReadBack {
+    fn lens_range(&self) -> (i32, i32) {
+        self.cam.lens_range()
+    }
+
+    fn focus(&mut self, plane: usize, position: i32) -> Result<(), CaptureError> {
+        self.cam.focus(plane, position)?;
+        let now = self
+            .lens
+            .control(CID_FOCUS_ABSOLUTE)
+            .map_err(|e| CaptureError::device("Lens A", e.to_string()))?;
+        self.seen.push((position, now));
+        Ok(())
+    }
+
+    fn capture(&mut self) -> Result<Take, CaptureError> {
+        self.cam.capture()
+    }
+
+    fn release(&mut self) -> Result<(), CaptureError> {
+        self.cam.release()
+    }
+}
+
+fn lens_sweep(profile: &str) -> Check {
+    let lens_node = node("Lens A")?;
+    let lens = Device::open(&lens_node).map_err(|e| format!("{}: {e}", lens_node.display()))?;
+    let before = 300;
+    lens.set_control(CID_FOCUS_ABSOLUTE, before)
+        .map_err(|e| format!("setting Lens A: {e}"))?;
+    let cam = v4l2::open(&cfg(Some(profile.to_string()))).map_err(|e| format!("open: {e}"))?;
+    let d = cam.describe();
+    ensure!(
+        d.contains(&format!(
+            "lens {} control 0x009a090a 0..=1023",
+            lens_node.display()
+        )),
+        "the lens is not Lens A's node {} with FOCUS_ABSOLUTE 0..=1023: {d}",
+        lens_node.display()
+    );
+    let graph = pipeline::apply(&shipped()?, Path::new("/sys")).map_err(|e| e.to_string())?;
+    ensure!(
+        graph.lens.as_ref() == Some(&lens_node),
+        "the graph's lens for Sensor A is {:?}, not Lens A's node {}",
+        graph.lens,
+        lens_node.display()
+    );
+    ok(format!(
+        "the lens through the graph (ancillary link from Sensor A): {d}"
+    ));
+
+    let mut imu = IioImu::open(&fake_imu()?).map_err(|e| format!("fake IMU: {e}"))?;
+    std::thread::sleep(std::time::Duration::from_millis(100));
+    let now = monotonic_now();
+    let samples = imu
+        .samples(now - 50_000_000, now)
+        .map_err(|e| format!("IMU samples: {e}"))?;
+    ensure!(
+        samples.iter().any(|s| s.sensor == Sensor::Gyro)
+            && samples.iter().all(|s| (s.t - now).abs() < 200_000_000),
+        "IMU samples are not on the monotonic clock around {now}: {:?}",
+        samples.first()
+    );
+    ok(format!(
+        "fake IIO IMU polled on CLOCK_MONOTONIC: {} samples in the last 50 ms",
+        samples.len()
+    ));
+
+    let mut rb = ReadBack {
+        cam,
+        lens,
+        seen: Vec::new(),
+    };
+    let sc = SweepConfig {
+        planes: 5,
+        still_ms: 40,
+        still_timeout_ms: 3000,
+        ..SweepConfig::default()
+    };
+    let s = sweep(&mut rb, &mut imu, &MonotonicClock, &sc, &Unmonitored)
+        .map_err(|e| format!("sweep: {e}"))?;
+    let planes: Vec<i32> = s.planes.iter().map(|p| p.lens).collect();
+    ensure!(
+        s.frames.len() == 5 && planes.len() == 5,
+        "{} frames, {} planes; 5 asked",
+        s.frames.len(),
+        planes.len()
+    );
+    ensure!(
+        planes.first() == Some(&1023) && planes.last() == Some(&0),
+        "the sweep did not span the lens range: {planes:?}"
+    );
+    let moves: Vec<i32> = rb.seen.iter().map(|&(p, _)| p).collect();
+    ensure!(
+        rb.seen.iter().all(|&(p, v)| i64::from(p) == v),
+        "the lens read back differs from the sweep: (asked, read) {:?}",
+        rb.seen
+    );
+    let mut distinct = moves.clone();
+    distinct.dedup();
+    ensure!(
+        distinct == planes,
+        "lens moves {moves:?} are not the planes {planes:?}"
+    );
+    for f in &s.frames {
+        ensure!(
+            f.exposure_start < f.exposure_end && f.exposure_end <= monotonic_now(),
+            "frame window [{}, {}] is not in the past of CLOCK_MONOTONIC",
+            f.exposure_start,
+            f.exposure_end
+        );
+    }
+    let after = rb
+        .lens
+        .control(CID_FOCUS_ABSOLUTE)
+        .map_err(|e| format!("reading Lens A: {e}"))?;
+    ensure!(
+        after == before,
+        "after the sweep Lens A is at {after}, it was {before}"
+    );
+    ok(format!(
+        "sweep of 5 planes at {planes:?}, Lens A read back at each ({:?}), restored to {before}",
+        rb.seen
+    ));
+    Ok(())
+}

@@ -1,0 +1,227 @@
+//! Device profiles (`config/devices/*.toml`): what a phone's media-controller camera pipeline
+//! needs before it streams (the links to enable, each pad's format and crop), which entity is
+//! the sensor and which the capture node, the capture format, and where the lens is. One small
+//! TOML file per device, like Megapixels' per-device configs; the fields are documented in
+//! `config/devices/README.md`. Pure: parsing and checking only; `pipeline` applies them.
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The profiles shipped inside the binary, by name.
+pub const SHIPPED: [(&str, &str); 1] =
+    [("vimc", include_str!("../../../config/devices/vimc.toml"))];
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profile {
+    /// A short name for messages.
+    pub name: String,
+    /// The media device's model (MEDIA_IOC_DEVICE_INFO), which picks the media device.
+    pub media_model: String,
+    /// The sensor's entity name; the lens is the lens entity linked to it.
+    pub sensor: String,
+    /// The entity name of the video node to capture from.
+    pub capture: String,
+    /// The capture node's format.
+    pub format: CaptureFormat,
+    /// Where the lens is.
+    pub lens: LensSpec,
+    /// Data links to enable, in order.
+    #[serde(default, rename = "link")]
+    pub links: Vec<LinkSpec>,
+    /// Pad formats to set, in order (upstream first: a driver propagates a sink pad's format to
+    /// its source pads, which a later entry may then change).
+    #[serde(default, rename = "pad")]
+    pub pads: Vec<PadSpec>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CaptureFormat {
+    /// The fourcc (`RGGB`, `RGB3`, `NV12`, ...).
+    pub fourcc: String,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// The lens: through the media graph, or none (with the reason, said when a capture is asked).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "lowercase")]
+pub enum LensSpec {
+    /// The entity of function MEDIA_ENT_F_LENS with an ancillary link to the sensor; when the
+    /// graph has none (older kernels), the sysfs lookup by driver name.
+    Graph,
+    /// No lens focusd can move.
+    None { reason: String },
+}
+
+/// A pad: an entity's name and the pad's index.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PadRef(pub String, pub u16);
+
+impl std::fmt::Display for PadRef {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "\"{}\":{}", self.0, self.1)
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinkSpec {
+    pub source: PadRef,
+    pub sink: PadRef,
+}
+
+impl std::fmt::Display for LinkSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} -> {}", self.source, self.sink)
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PadSpec {
+    pub pad: PadRef,
+    /// The media-bus code's name without `MEDIA_BUS_FMT_` (`SRGGB10_1X10`).
+    pub code: String,
+    pub width: u32,
+    pub height: u32,
+    /// The crop rectangle `[left, top, width, height]`, when the pad needs one.
+    pub crop: Option<[u32; 4]>,
+}
+
+/// The media-bus codes profiles may name (linux/media-bus-format.h).
+pub const MBUS_CODES: [(&str, u32); 14] = [
+    ("RGB888_1X24", 0x100a),
+    ("UYVY8_2X8", 0x2006),
+    ("YUYV8_2X8", 0x2008),
+    ("YUYV8_1X16", 0x2011),
+    ("SBGGR8_1X8", 0x3001),
+    ("SGRBG8_1X8", 0x3002),
+    ("SGBRG8_1X8", 0x3013),
+    ("SRGGB8_1X8", 0x3014),
+    ("SBGGR10_1X10", 0x3007),
+    ("SGRBG10_1X10", 0x300a),
+    ("SGBRG10_1X10", 0x300e),
+    ("SRGGB10_1X10", 0x300f),
+    ("SGBRG12_1X12", 0x3010),
+    ("SRGGB12_1X12", 0x3012),
+];
+
+/// A media-bus code by name.
+pub fn mbus_code(name: &str) -> Option<u32> {
+    MBUS_CODES.iter().find(|(n, _)| *n == name).map(|&(_, c)| c)
+}
+
+/// A media-bus code's name, or its hex value.
+pub fn mbus_name(code: u32) -> String {
+    MBUS_CODES
+        .iter()
+        .find(|&&(_, c)| c == code)
+        .map_or_else(|| format!("0x{code:04x}"), |(n, _)| n.to_string())
+}
+
+impl Profile {
+    /// Parses and checks a profile's text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<Profile, String> {
+        let p: Profile =
+            toml::from_str(text).map_err(|e| format!("device profile {origin}: {e}"))?;
+        p.check()
+            .map_err(|e| format!("device profile {origin}: {e}"))?;
+        Ok(p)
+    }
+
+    /// A shipped profile by name, or a file by path (anything with a `/` or ending `.toml`).
+    pub fn load(spec: &str) -> Result<Profile, String> {
+        if spec.contains('/') || spec.ends_with(".toml") {
+            let text = std::fs::read_to_string(Path::new(spec))
+                .map_err(|e| format!("device profile {spec}: {e}"))?;
+            return Profile::parse(&text, spec);
+        }
+        let (_, text) = SHIPPED.iter().find(|(n, _)| *n == spec).ok_or_else(|| {
+            let names: Vec<&str> = SHIPPED.iter().map(|(n, _)| *n).collect();
+            format!(
+                "no shipped device profile {spec:?}; shipped: {} (or give a path to a .toml file)",
+                names.join(", ")
+            )
+        })?;
+        Profile::parse(text, spec)
+    }
+
+    fn check(&self) -> Result<(), String> {
+        for p in &self.pads {
+            if mbus_code(&p.code).is_none() {
+                let names: Vec<&str> = MBUS_CODES.iter().map(|(n, _)| *n).collect();
+                return Err(format!(
+                    "pad {}: unknown media-bus code {:?}; known: {}",
+                    p.pad,
+                    p.code,
+                    names.join(", ")
+                ));
+            }
+            if p.width == 0 || p.height == 0 {
+                return Err(format!(
+                    "pad {}: empty size {}x{}",
+                    p.pad, p.width, p.height
+                ));
+            }
+        }
+        super::format::PixelFormat::parse(&self.format.fourcc)
+            .map_err(|e| format!("format.fourcc = {:?}: {e}", self.format.fourcc))?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_profiles_parse() {
+        for (name, text) in SHIPPED {
+            let p = Profile::parse(text, name).expect("parses");
+            assert_eq!(p.name, name);
+        }
+        let vimc = Profile::load("vimc").expect("vimc");
+        assert_eq!(vimc.media_model, "VIMC MDEV");
+        assert_eq!(vimc.lens, LensSpec::Graph);
+        assert_eq!(vimc.links[0].to_string(), "\"Debayer A\":1 -> \"Scaler\":0");
+    }
+
+    #[test]
+    fn bad_profiles_name_the_problem() {
+        let e = Profile::load("pinephone-x").expect_err("unknown");
+        assert!(e.contains("shipped: vimc"), "{e}");
+        let base = SHIPPED[0].1;
+        let e = Profile::parse(&base.replace("SRGGB8_1X8", "SRGGB9_1X9"), "t").expect_err("code");
+        assert!(
+            e.contains("pad \"Sensor A\":0: unknown media-bus code \"SRGGB9_1X9\""),
+            "{e}"
+        );
+        let e = Profile::parse(&base.replace("fourcc = \"RGB3\"", "fourcc = \"XX\""), "t")
+            .expect_err("fourcc");
+        assert!(e.contains("format.fourcc = \"XX\""), "{e}");
+        let e = Profile::parse("name = 1", "t").expect_err("toml");
+        assert!(e.starts_with("device profile t: "), "{e}");
+        let none = base.replace(
+            "kind = \"graph\"",
+            "kind = \"none\"\nreason = \"firmware autofocus only\"",
+        );
+        let p = Profile::parse(&none, "t").expect("lens none");
+        assert_eq!(
+            p.lens,
+            LensSpec::None {
+                reason: "firmware autofocus only".into()
+            }
+        );
+    }
+
+    #[test]
+    fn mbus_names_round_trip() {
+        for (n, c) in MBUS_CODES {
+            assert_eq!(mbus_code(n), Some(c));
+            assert_eq!(mbus_name(c), n);
+        }
+        assert_eq!(mbus_name(0x9999), "0x9999");
+    }
+}
