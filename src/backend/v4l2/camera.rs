@@ -687,6 +687,24 @@ mod tests {
     }
 
     #[test]
+    fn the_pinephone_profile_fails_at_once_with_the_reason() {
+        // No media device, no video node: the profile stops before it looks for any.
+        let t = tempfile::tempdir().expect("tempdir");
+        let cfg = V4l2Config {
+            profile: Some("pinephone".into()),
+            sysfs_root: t.path().join("sys"),
+            ..V4l2Config::default()
+        };
+        let msg = open(&cfg).err().expect("no lens").to_string();
+        assert!(
+            msg.starts_with("device profile pinephone: this camera has no lens focusd can move")
+                && msg.contains("firmware autofocus")
+                && msg.contains("`focusd fuse` still fuses stacks taken elsewhere"),
+            "{msg}"
+        );
+    }
+
+    #[test]
     fn no_video_nodes_says_so() {
         let t = tempfile::tempdir().expect("tempdir");
         let cfg = V4l2Config {

@@ -8,8 +8,13 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The profiles shipped inside the binary, by name.
-pub const SHIPPED: [(&str, &str); 1] =
-    [("vimc", include_str!("../../../config/devices/vimc.toml"))];
+pub const SHIPPED: [(&str, &str); 2] = [
+    ("vimc", include_str!("../../../config/devices/vimc.toml")),
+    (
+        "pinephone",
+        include_str!("../../../config/devices/pinephone.toml"),
+    ),
+];
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -191,7 +196,7 @@ mod tests {
     #[test]
     fn bad_profiles_name_the_problem() {
         let e = Profile::load("pinephone-x").expect_err("unknown");
-        assert!(e.contains("shipped: vimc"), "{e}");
+        assert!(e.contains("shipped: vimc, pinephone"), "{e}");
         let base = SHIPPED[0].1;
         let e = Profile::parse(&base.replace("SRGGB8_1X8", "SRGGB9_1X9"), "t").expect_err("code");
         assert!(
