@@ -467,8 +467,8 @@ fn streaming(node: &Path) -> Check {
     }
     cam.release().map_err(|e| format!("release: {e}"))?;
     ok(format!(
-        "mmap streaming: 6 frames in a row, increasing windows (overlapping by at most half) on CLOCK_MONOTONIC \
-         (lengths {lengths:?} us)"
+        "mmap streaming: 6 frames in a row, increasing windows (overlapping by at most half) \
+         on CLOCK_MONOTONIC (lengths {lengths:?} us)"
     ));
     Ok(())
 }

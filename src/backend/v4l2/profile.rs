@@ -4,6 +4,7 @@
 //! TOML file per device, like Megapixels' per-device configs; the fields are documented in
 //! `config/devices/README.md`. Pure: parsing and checking only; `pipeline` applies them.
 
+use crate::backend::videodev::abi::MBUS_CODES;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -94,24 +95,6 @@ pub struct PadSpec {
     /// The crop rectangle `[left, top, width, height]`, when the pad needs one.
     pub crop: Option<[u32; 4]>,
 }
-
-/// The media-bus codes profiles may name (linux/media-bus-format.h).
-pub const MBUS_CODES: [(&str, u32); 14] = [
-    ("RGB888_1X24", 0x100a),
-    ("UYVY8_2X8", 0x2006),
-    ("YUYV8_2X8", 0x2008),
-    ("YUYV8_1X16", 0x2011),
-    ("SBGGR8_1X8", 0x3001),
-    ("SGRBG8_1X8", 0x3002),
-    ("SGBRG8_1X8", 0x3013),
-    ("SRGGB8_1X8", 0x3014),
-    ("SBGGR10_1X10", 0x3007),
-    ("SGRBG10_1X10", 0x300a),
-    ("SGBRG10_1X10", 0x300e),
-    ("SRGGB10_1X10", 0x300f),
-    ("SGBRG12_1X12", 0x3010),
-    ("SRGGB12_1X12", 0x3012),
-];
 
 /// A media-bus code by name.
 pub fn mbus_code(name: &str) -> Option<u32> {

@@ -84,6 +84,25 @@ pub const MEDIA_LNK_FL_ANCILLARY_LINK: u32 = 2 << 28;
 pub const MEDIA_INTF_T_V4L_VIDEO: u32 = 0x0200;
 pub const MEDIA_INTF_T_V4L_SUBDEV: u32 = 0x0203;
 
+/// Media-bus codes (`MEDIA_BUS_FMT_*` of linux/media-bus-format.h) by name, the ones device
+/// profiles may name.
+pub const MBUS_CODES: [(&str, u32); 14] = [
+    ("RGB888_1X24", 0x100a),
+    ("UYVY8_2X8", 0x2006),
+    ("YUYV8_2X8", 0x2008),
+    ("YUYV8_1X16", 0x2011),
+    ("SBGGR8_1X8", 0x3001),
+    ("SGRBG8_1X8", 0x3002),
+    ("SGBRG8_1X8", 0x3013),
+    ("SRGGB8_1X8", 0x3014),
+    ("SBGGR10_1X10", 0x3007),
+    ("SGRBG10_1X10", 0x300a),
+    ("SGBRG10_1X10", 0x300e),
+    ("SRGGB10_1X10", 0x300f),
+    ("SGBRG12_1X12", 0x3010),
+    ("SRGGB12_1X12", 0x3012),
+];
+
 /// `struct v4l2_capability`
 #[repr(C)]
 #[derive(Clone, Copy)]
@@ -566,7 +585,8 @@ mod tests {
     fn assertions() -> String {
         let mut c = String::from(
             "#include <stddef.h>\n#include <sys/time.h>\n#include <linux/videodev2.h>\n\
-             #include <linux/v4l2-subdev.h>\n#include <linux/media.h>\n",
+             #include <linux/v4l2-subdev.h>\n#include <linux/media.h>\n\
+             #include <linux/media-bus-format.h>\n",
         );
         let mut size = |c_type: &str, rust: usize, fields: &[(&str, usize)]| {
             let _ = writeln!(
@@ -823,6 +843,10 @@ mod tests {
             "MEDIA_IOC_SETUP_LINK" = MEDIA_IOC_SETUP_LINK,
             "MEDIA_IOC_G_TOPOLOGY" = MEDIA_IOC_G_TOPOLOGY,
         );
+        // The media-bus codes device profiles name.
+        for (name, code) in MBUS_CODES {
+            value(&format!("MEDIA_BUS_FMT_{name}"), code.into());
+        }
         c
     }
 
