@@ -23,11 +23,11 @@
 //! holds a sharp near edge over a sharp background. The parameters are fixed (issue 13): the
 //! figures this check gives are comparable across versions of the fuse.
 
+use super::align::{warp_frame, Exposure};
 use super::blur::gaussian_blur;
 use super::image::{Image, Plane, Sample};
 use super::register::ransac::{ransac_affine, Pair};
-use super::transform::Affine;
-use super::warp::warp_affine;
+use super::transform::{Affine, Warp};
 use rayon::prelude::*;
 
 /// Working width, px: the sizes below are at this width.
@@ -97,7 +97,8 @@ pub fn check<T: Sample, U: Sample>(output: &Image<T>, frames: &[Image<U>]) -> Gh
         let luma = to_width(&f.luma(), WIDTH);
         let a = align(&out, &luma);
         if let Some(a) = a {
-            aligned.push(gaussian_blur(&warp_affine(&luma, &a, w, h).0, SMOOTH));
+            let (warped, _) = warp_frame(&luma, &out, &Warp::affine(a), &[Exposure::SAME]);
+            aligned.push(gaussian_blur(&warped, SMOOTH));
         }
         alignments.push(a);
     }
