@@ -55,7 +55,7 @@ pub struct SimulateArgs {
     /// Sensor read-noise sigma in 8-bit units, plus shot noise (0..=50).
     #[arg(long, default_value_t = 1.5, value_name = "SIGMA")]
     pub noise: f64,
-    /// Extra shift of the nearest layers against the background at full shift, px (0..=2).
+    /// Extra shift of the nearest layers against the background at full shift, px (0..=8).
     #[arg(long, default_value_t = 1.0, value_name = "PX")]
     pub parallax: f64,
     /// Defocus sigma of a layer one plane from focus, px (0.3..=max-blur).
@@ -81,6 +81,13 @@ pub struct SimulateArgs {
     /// JPEG quality of the frames (1..=100).
     #[arg(long, default_value_t = 92)]
     pub quality: u32,
+    /// Mix layers and blur in linear light, encoding sRGB only at the end, as a camera does.
+    #[arg(long)]
+    pub linear_light: bool,
+    /// Also write each frame's true per-pixel motion (`motion_NN.png`, see sim-data/README.md),
+    /// what an aligned depth oracle needs on a stack with parallax.
+    #[arg(long)]
+    pub motion: bool,
 }
 
 impl SimulateArgs {
@@ -102,6 +109,7 @@ impl SimulateArgs {
             max_blur: self.max_blur,
             near_diopters: self.near_diopters,
             far_diopters: self.far_diopters,
+            linear_light: self.linear_light,
         }
     }
 
@@ -181,6 +189,11 @@ struct StackJson<'a> {
     truth: &'static str,
     depth: &'static str,
     depth_encoding: &'static str,
+    steps: &'static str,
+    /// The largest defocus sigma of any layer in any frame, px.
+    max_sigma: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    motion: Option<&'static str>,
     transforms: &'static str,
     frames: Vec<FrameEntry<'a>>,
 }
@@ -212,11 +225,27 @@ pub fn command_line(p: &SimParams, quality: u32, dir: &Path) -> String {
         p.near_diopters,
         p.far_diopters
     );
+    if p.linear_light {
+        s += " --linear-light";
+    }
     s
 }
 
 pub fn frame_name(i: usize) -> String {
     format!("frame_{i:02}.jpg")
+}
+
+pub fn motion_name(i: usize) -> String {
+    format!("motion_{i:02}.png")
+}
+
+/// How `motion_NN.png` holds the motion (also written into stack.json).
+const MOTION_ENCODING: &str = "motion_NN.png: 16-bit RGB; frame NN shows reference pixel (x, y) at \
+     ref_to_frame(x, y) + (dx, dy) frame px, dx = (R - 32768) / 1024, dy = (G - 32768) / 1024, B = 0";
+
+/// One motion component (frame px, |d| < 32) as `MOTION_ENCODING` stores it.
+fn motion_code(d: f64) -> u16 {
+    (d * 1024.0 + 32768.0).round().clamp(0.0, 65535.0) as u16
 }
 
 pub fn run(args: &SimulateArgs) -> Result<()> {
@@ -225,7 +254,9 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let dir = &args.output;
     fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create directory", dir.display()))?;
-    let stack = sim::render(&p);
+    let scene = sim::scene::Scene::generate(&p);
+    let rendered = sim::render::render_scene(&p, &scene);
+    let stack = &rendered.stack;
     let quality = args.quality as u8;
     let names: Vec<String> = (0..p.planes).map(frame_name).collect();
     for (frame, name) in stack.frames.iter().zip(&names) {
@@ -245,6 +276,23 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             .collect(),
     );
     save(&depth_png, &dir.join("depth.png"), quality)?;
+    save(&stack.steps, &dir.join("steps.png"), quality)?;
+    if args.motion {
+        for i in 0..p.planes {
+            let a = stack.ref_to_frame[i];
+            let pos = sim::render::true_positions(&p, &scene, &rendered, i);
+            let img = Image::<u16>::from_fn(p.width, p.height, 3, |x, y, c| {
+                let (u, v) = pos[y * p.width + x];
+                let (au, av) = a.apply(x as f64, y as f64);
+                match c {
+                    0 => motion_code(u - au),
+                    1 => motion_code(v - av),
+                    _ => 0,
+                }
+            });
+            save(&img, &dir.join(motion_name(i)), quality)?;
+        }
+    }
 
     let transforms = Transforms {
         reference: stack.reference,
@@ -280,6 +328,9 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         truth: "truth.png",
         depth: "depth.png",
         depth_encoding: "gray = round(plane * 255 / (planes - 1)); plane 0 = nearest focus",
+        steps: "steps.png",
+        max_sigma: stack.max_sigma,
+        motion: args.motion.then_some(MOTION_ENCODING),
         transforms: "transforms.json",
         frames: names
             .iter()
@@ -298,7 +349,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     write_atomic(&dir.join("stack.json"), &json)?;
 
     if args.bundle {
-        write_bundle(&p, &stack, &names, &shakes, dir, quality)?;
+        write_bundle(&p, stack, &names, &shakes, dir, quality)?;
     }
 
     let mut stale: Vec<String> = fs::read_dir(dir)
@@ -420,8 +471,8 @@ mod tests {
             "--max-rotation 20 is out of range 0..=10"
         );
         assert_eq!(
-            err(&["--parallax", "3"]),
-            "--parallax 3 is out of range 0..=2"
+            err(&["--parallax", "9"]),
+            "--parallax 9 is out of range 0..=8"
         );
         assert!(err(&["--width", "8192", "--height", "8192"]).starts_with("stack 8192x8192x6"));
         assert!(!err(&["--blur-per-plane", "12"]).contains('\n'));
@@ -439,6 +490,10 @@ mod tests {
             "--planes",
             "4",
             "--handheld",
+            "--parallax",
+            "6",
+            "--linear-light",
+            "--motion",
         ]);
         args.output = dir.join("nested");
         run(&args).unwrap();
@@ -458,6 +513,32 @@ mod tests {
             panic!("truth is 8-bit")
         };
         assert_eq!((truth.width, truth.channels), (64, 3));
+        let Decoded::U8(steps) = load(&out.join("steps.png")).unwrap() else {
+            panic!("steps are 8-bit")
+        };
+        assert!(steps.data.contains(&255) && steps.data.contains(&0));
+        // The written motion is the simulator's: the reference does not move, the others move
+        // by their affine plus up to the frame's parallax on near layers.
+        let p = args.params();
+        let scene = sim::scene::Scene::generate(&p);
+        let r = sim::render::render_scene(&p, &scene);
+        for i in 0..4 {
+            let Decoded::U16(m) = load(&out.join(motion_name(i))).unwrap() else {
+                panic!("motion is 16-bit")
+            };
+            let pos = sim::render::true_positions(&p, &scene, &r, i);
+            let a = r.stack.ref_to_frame[i];
+            let mut most = 0.0f64;
+            for (k, &(u, v)) in pos.iter().enumerate() {
+                let (x, y) = ((k % 64) as f64, (k / 64) as f64);
+                let (au, av) = a.apply(x, y);
+                let dx = (m.data[3 * k] as f64 - 32768.0) / 1024.0;
+                let dy = (m.data[3 * k + 1] as f64 - 32768.0) / 1024.0;
+                assert!((au + dx - u).abs() < 1e-3 && (av + dy - v).abs() < 1e-3);
+                most = most.max(dx.hypot(dy));
+            }
+            assert_eq!(most == 0.0, i == 1, "frame {i}: largest motion {most}");
+        }
         let t: Transforms =
             serde_json::from_slice(&fs::read(out.join("transforms.json")).unwrap()).unwrap();
         assert_eq!((t.reference, t.size, t.frames.len()), (1, [64, 48], 4));
@@ -472,6 +553,12 @@ mod tests {
         assert_eq!(s["params"]["planes"], 4);
         assert_eq!(s["frames"][0]["focus_diopters"], 20.0);
         assert_eq!(s["frames"][1]["gain"], 1.0);
+        assert_eq!(s["params"]["linear_light"], true);
+        assert_eq!(s["max_sigma"], 6.0);
+        assert!(s["command"].as_str().unwrap().ends_with(
+            "--parallax 6 --gain-jitter 0 --wb-jitter 0 --noise 1.5 --blur-per-plane 2 \
+                 --max-blur 9 --near-diopters 20 --far-diopters 5 --quality 92 --linear-light"
+        ));
         // No temporary files are left behind.
         assert!(fs::read_dir(out).unwrap().all(|e| !e
             .unwrap()

@@ -52,7 +52,7 @@ pub struct SimParams {
     /// signal level v, so at full scale the total noise is √2·noise_sigma.
     pub noise_sigma: f64,
     /// Extra shift (px) of the nearest layers relative to the far background, along the frame's
-    /// translation, at full max_shift (hand-held only; 0..=2).
+    /// translation, at full max_shift (hand-held only; 0..=8).
     pub parallax_px: f64,
     /// Defocus Gaussian sigma (px) of a layer one focus plane away from the frame's focus.
     pub blur_per_plane: f64,
@@ -62,6 +62,11 @@ pub struct SimParams {
     pub near_diopters: f64,
     /// Focus distance of the last plane (the farthest) in diopters.
     pub far_diopters: f64,
+    /// Mix layers, blur, resample and apply gain in linear light and encode sRGB only at the end,
+    /// as a camera does; false mixes the display values (the committed stacks' model). A spill
+    /// model fitted to display-value mixing would only invert the simulator's own formula.
+    #[serde(default)]
+    pub linear_light: bool,
 }
 
 impl Default for SimParams {
@@ -85,6 +90,7 @@ impl Default for SimParams {
             max_blur: 9.0,
             near_diopters: 20.0,
             far_diopters: 5.0,
+            linear_light: false,
         }
     }
 }
@@ -94,6 +100,9 @@ pub const SIZE_RANGE: (usize, usize) = (16, 8192);
 pub const PLANES_RANGE: (usize, usize) = (2, 64);
 /// Frames are kept in memory: width·height·planes may not exceed this.
 pub const MAX_STACK_PIXELS: usize = 400_000_000;
+/// Upper limit of `parallax_px`: a macro subject a few cm away against a background several
+/// times farther moves this much against it for a few mm of hand motion.
+pub const MAX_PARALLAX_PX: f64 = 8.0;
 
 impl SimParams {
     /// Checks every value; the error is one line naming the bad value and the allowed range.
@@ -131,7 +140,7 @@ impl SimParams {
         within("gain_jitter", self.gain_jitter, 0.0, 0.5)?;
         within("wb_jitter", self.wb_jitter, 0.0, 0.5)?;
         within("noise_sigma", self.noise_sigma, 0.0, 50.0)?;
-        within("parallax_px", self.parallax_px, 0.0, 2.0)?;
+        within("parallax_px", self.parallax_px, 0.0, MAX_PARALLAX_PX)?;
         within("max_blur", self.max_blur, 0.5, 30.0)?;
         within("blur_per_plane", self.blur_per_plane, 0.3, self.max_blur)?;
         within("near_diopters", self.near_diopters, 0.1, 1000.0)?;
@@ -166,6 +175,9 @@ pub struct FrameInfo {
     pub translation: [f64; 2],
     pub rotation_deg: f64,
     pub scale: f64,
+    /// Extra shift (px, x and y) of a layer at plane 0 against the far background in this frame;
+    /// nearer-than-background layers at plane q move (1 − q/(planes − 1)) of it.
+    pub parallax: [f64; 2],
 }
 
 /// A rendered stack with its ground truth.
@@ -178,6 +190,12 @@ pub struct SimStack {
     pub truth: Image<u8>,
     /// One channel: index of the plane focused at each reference pixel's true depth (0 = nearest).
     pub depth: Image<u8>,
+    /// One channel: 255 on a depth step (an occlusion edge: a 4-neighbour shows another layer at
+    /// least half a plane nearer or farther), else 0. The smooth depth change along the slanted
+    /// ruler is no step.
+    pub steps: Image<u8>,
+    /// The largest defocus sigma (px) any layer has in any frame: how far a step's spill reaches.
+    pub max_sigma: f64,
     /// (planes − 1) / 2.
     pub reference: usize,
     /// The true affine taking reference pixel coords to frame i pixel coords (identity for the

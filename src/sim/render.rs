@@ -125,8 +125,14 @@ impl Raster {
 }
 
 /// Rasterises `layer` (moved by `parallax`) over its bounding box grown by `pad` px, clipped to the
-/// canvas. `None` when the layer lies entirely off the canvas.
-pub fn rasterize(layer: &Layer, cv: Canvas, pad: f64, parallax: &Parallax) -> Option<Raster> {
+/// canvas, its colours in `light`. `None` when the layer lies entirely off the canvas.
+pub fn rasterize(
+    layer: &Layer,
+    cv: Canvas,
+    pad: f64,
+    parallax: &Parallax,
+    light: Mixing,
+) -> Option<Raster> {
     let m = cv.margin as f64;
     let (x0, y0, x1, y1) = match layer.shape.bbox() {
         None => (0, 0, cv.width, cv.height),
@@ -159,7 +165,7 @@ pub fn rasterize(layer: &Layer, cv: Canvas, pad: f64, parallax: &Parallax) -> Op
             if a <= 0.0 {
                 continue;
             }
-            let c = layer.paint.color(sx, sy);
+            let c = layer.paint.color(sx, sy).map(|v| light.from_display(v));
             px.copy_from_slice(&[c[0] * a, c[1] * a, c[2] * a, a]);
         }
     });
@@ -254,6 +260,46 @@ fn composite(out: &mut [Plane; 3], r: &Raster) {
     }
 }
 
+/// The values layers are mixed, blurred and resampled in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mixing {
+    /// Display (sRGB-encoded) values, as the committed stacks were rendered.
+    Display,
+    /// Linear light, encoded to sRGB only when a frame is exposed, as in a camera.
+    Linear,
+}
+
+impl Mixing {
+    fn of(p: &SimParams) -> Mixing {
+        if p.linear_light {
+            Mixing::Linear
+        } else {
+            Mixing::Display
+        }
+    }
+
+    /// A display value 0..=1 (a paint colour) in this light.
+    #[inline]
+    pub fn from_display(self, v: f32) -> f32 {
+        match self {
+            Mixing::Display => v,
+            Mixing::Linear if v <= 0.04045 => v / 12.92,
+            Mixing::Linear => ((v + 0.055) / 1.055).powf(2.4),
+        }
+    }
+
+    /// A value in this light back to a display value 0..=1 (clamped).
+    #[inline]
+    pub fn to_display(self, v: f32) -> f32 {
+        let v = v.clamp(0.0, 1.0);
+        match self {
+            Mixing::Display => v,
+            Mixing::Linear if v <= 0.003_130_8 => v * 12.92,
+            Mixing::Linear => 1.055 * v.powf(1.0 / 2.4) - 0.055,
+        }
+    }
+}
+
 /// Cuts the reference frame out of a canvas plane.
 fn crop(p: &Plane, cv: Canvas, w: usize, h: usize) -> Plane {
     let m = cv.margin;
@@ -282,6 +328,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
     let pad = blur_pad(&optics);
     let reference = p.reference();
     let q_far = (n - 1) as f64;
+    let light = Mixing::of(p);
 
     let poses = draw_poses(p, STREAM_POSES);
     let ref_to_frame: Vec<Affine> = poses.iter().map(|q| q.ref_to_frame(w, h)).collect();
@@ -301,7 +348,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
     let base: Vec<Option<Raster>> = scene
         .layers
         .iter()
-        .map(|l| rasterize(l, cv, pad, &Parallax::NONE))
+        .map(|l| rasterize(l, cv, pad, &Parallax::NONE, light))
         .collect();
 
     // Truth: the same composite without blur, and the frontmost owner of every pixel.
@@ -324,12 +371,21 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
             }
         }
     }
-    let truth_planes: Vec<Plane> = canvas.iter().map(|c| crop(c, cv, w, h)).collect();
+    let truth_planes: Vec<Plane> = canvas
+        .iter()
+        .map(|c| {
+            let mut t = crop(c, cv, w, h);
+            t.data.iter_mut().for_each(|v| *v = light.to_display(*v));
+            t
+        })
+        .collect();
     let truth = Image::<u8>::from_planes(&truth_planes);
     let depth = Image::from_fn(w, h, 1, |x, y, _| {
         let q = scene.layers[owner[y * w + x]].depth.at(x as f64, y as f64);
         q.round().clamp(0.0, q_far) as u8
     });
+
+    let steps = depth_steps(scene, &owner, w, h);
 
     let mut wb_rng = Rng::stream(p.seed, STREAM_WHITE_BALANCE);
     let white_balance: Vec<[f64; 3]> = (0..n)
@@ -352,7 +408,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
         for (li, layer) in scene.layers.iter().enumerate() {
             let moved;
             let r = if parallax.moves(layer) {
-                moved = rasterize(layer, cv, pad, &parallax);
+                moved = rasterize(layer, cv, pad, &parallax, light);
                 moved.as_ref()
             } else {
                 base[li].as_ref()
@@ -384,7 +440,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
             .map(|c| warp_affine(c, &frame_to_canvas, w, h).0)
             .collect();
         let gain = white_balance[i].map(|b| b * gains[i]);
-        frames.push(expose(&warped, gain, p.noise_sigma, p.seed, i));
+        frames.push(expose(&warped, gain, light, p.noise_sigma, p.seed, i));
         info.push(FrameInfo {
             focus_diopters: optics.focus_diopters(i),
             gain: gains[i],
@@ -392,6 +448,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
             translation: [pose.translation.0, pose.translation.1],
             rotation_deg: pose.rotation.to_degrees(),
             scale: pose.scale,
+            parallax: [parallax.v.0, parallax.v.1],
         });
     }
     Rendered {
@@ -399,6 +456,8 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
             frames,
             truth,
             depth,
+            steps,
+            max_sigma: optics.worst_sigma(),
             reference,
             ref_to_frame,
             info,
@@ -406,6 +465,30 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
         owner,
         canvas: cv,
     }
+}
+
+/// Occlusion edges of the reference view: pixels with a 4-neighbour owned by another layer whose
+/// depth there differs by at least half a plane.
+fn depth_steps(scene: &Scene, owner: &[usize], w: usize, h: usize) -> Image<u8> {
+    let q = |x: usize, y: usize| scene.layers[owner[y * w + x]].depth.at(x as f64, y as f64);
+    Image::from_fn(w, h, 1, |x, y, _| {
+        let k = owner[y * w + x];
+        let here = q(x, y);
+        let step = [
+            (x.wrapping_sub(1), y),
+            (x + 1, y),
+            (x, y.wrapping_sub(1)),
+            (x, y + 1),
+        ]
+        .into_iter()
+        .filter(|&(u, v)| u < w && v < h)
+        .any(|(u, v)| owner[v * w + u] != k && (q(u, v) - here).abs() >= 0.5);
+        if step {
+            255
+        } else {
+            0
+        }
+    })
 }
 
 /// The parallax of a frame in pose `pose`: proportional to its translation, `parallax_px` at
@@ -447,16 +530,26 @@ pub fn true_positions(p: &SimParams, scene: &Scene, r: &Rendered, i: usize) -> V
         .collect()
 }
 
-/// Per-channel gain, Gaussian read noise plus shot noise (variance σ²·v/255), rounding and
-/// clamping to 8 bits.
-fn expose(planes: &[Plane], gain: [f64; 3], sigma: f64, seed: u64, frame: usize) -> Image<u8> {
+/// Per-channel gain (in `light`), encoding to display values, Gaussian read noise plus shot noise
+/// (variance σ²·v/255), rounding and clamping to 8 bits.
+fn expose(
+    planes: &[Plane],
+    gain: [f64; 3],
+    light: Mixing,
+    sigma: f64,
+    seed: u64,
+    frame: usize,
+) -> Image<u8> {
     let (w, h) = (planes[0].width, planes[0].height);
     let mut rng = Rng::stream(seed, STREAM_NOISE + frame as u64);
     let s2 = sigma * sigma;
     let mut data = Vec::with_capacity(w * h * planes.len());
     for i in 0..w * h {
         for (p, gain) in planes.iter().zip(gain) {
-            let v = p.data[i] as f64 * 255.0 * gain;
+            let v = match light {
+                Mixing::Display => p.data[i] as f64 * 255.0 * gain,
+                Mixing::Linear => light.to_display((p.data[i] as f64 * gain) as f32) as f64 * 255.0,
+            };
             let noisy = if sigma > 0.0 {
                 v + (s2 * (1.0 + v.max(0.0) / 255.0)).sqrt() * rng.normal()
             } else {
@@ -636,6 +729,79 @@ mod tests {
     }
 
     #[test]
+    fn linear_light_mixes_in_linear_values() {
+        // One colour everywhere stays that colour; a blurred edge between black and white mixes
+        // to half the light, which displays brighter than half the display value.
+        let p = SimParams {
+            linear_light: true,
+            ..quiet(small(8, true))
+        };
+        let mut scene = Scene::generate(&p);
+        scene.flatten([0.7, 0.5, 0.3]);
+        let r = render_scene(&p, &scene).stack;
+        for img in r.frames.iter().chain(std::iter::once(&r.truth)) {
+            assert!(img
+                .data
+                .chunks_exact(3)
+                .all(|px| px[0].abs_diff(179) <= 1 && px[1].abs_diff(128) <= 1));
+        }
+        let m = Mixing::Linear;
+        assert!((m.to_display(m.from_display(0.3)) - 0.3).abs() < 1e-6);
+        assert!((m.to_display(0.5) - 0.735).abs() < 0.001);
+        assert_eq!(Mixing::Display.from_display(0.3), 0.3);
+        // Same scene, display vs linear mixing: the sharp truth barely differs (edges only),
+        // the defocused frames clearly do.
+        let d = render_stack(&quiet(small(13, false)));
+        let l = render_stack(&SimParams {
+            linear_light: true,
+            ..quiet(small(13, false))
+        });
+        let mean_diff = |a: &Image<u8>, b: &Image<u8>| {
+            a.data
+                .iter()
+                .zip(&b.data)
+                .map(|(x, y)| x.abs_diff(*y) as f64)
+                .sum::<f64>()
+                / a.data.len() as f64
+        };
+        assert!(mean_diff(&d.truth, &l.truth) < 0.5);
+        assert!(mean_diff(&d.frames[0], &l.frames[0]) > 1.0);
+        assert_eq!(d.depth, l.depth);
+    }
+
+    #[test]
+    fn steps_mark_occlusion_edges_only() {
+        let p = small(9, false);
+        let scene = Scene::generate(&p);
+        let r = render_scene(&p, &scene);
+        let (w, h) = (160, 120);
+        let s = &r.stack.steps;
+        let on = s.data.iter().filter(|&&v| v == 255).count();
+        assert!(on > 100 && on < w * h / 5, "{on} step pixels");
+        for y in 0..h {
+            for x in 0..w {
+                let k = r.owner[y * w + x];
+                let same = [(x + 1, y), (x, y + 1)]
+                    .into_iter()
+                    .filter(|&(u, v)| u < w && v < h)
+                    .all(|(u, v)| r.owner[v * w + u] == k)
+                    && (x == 0 || r.owner[y * w + x - 1] == k)
+                    && (y == 0 || r.owner[(y - 1) * w + x] == k);
+                if same {
+                    assert_eq!(s.at(x, y, 0), 0, "({x},{y}) inside layer {k}");
+                }
+            }
+        }
+        // Both sides of a step are marked.
+        let marked_pairs = (0..h)
+            .flat_map(|y| (1..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| s.at(x, y, 0) == 255 && s.at(x - 1, y, 0) == 255)
+            .count();
+        assert!(marked_pairs > 20);
+        assert_eq!(r.stack.max_sigma, 9.0);
+    }
+
+    #[test]
     fn truth_has_no_dark_gaps_at_edges() {
         // The truth is a convex blend of the layers present at each pixel, so it can never be
         // darker than the darkest of them (a gap would be darker than both sides).
@@ -769,6 +935,8 @@ mod tests {
             }
         }
         assert!(moved > 100 && still > 100, "{moved} moved, {still} still");
+        let v = r.stack.info[i].parallax;
+        assert!(v[0].hypot(v[1]) > 0.1 && v[0].hypot(v[1]) <= 2.0, "{v:?}");
         let flat = SimParams {
             parallax_px: 0.0,
             ..p

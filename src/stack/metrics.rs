@@ -39,12 +39,26 @@ fn tenengrad_plane(l: &Plane) -> f64 {
 /// PSNR in dB of `a` against `b` (same geometry), over the interior `margin` pixels in from each
 /// edge, on each type's full scale.
 pub fn psnr<T: Sample, U: Sample>(a: &Image<T>, b: &Image<U>, margin: usize) -> f64 {
+    let (w, h) = (a.width, a.height);
+    psnr_where(a, b, |x, y| {
+        (margin..w.saturating_sub(margin)).contains(&x)
+            && (margin..h.saturating_sub(margin)).contains(&y)
+    })
+}
+
+/// PSNR in dB of `a` against `b` (same geometry) over the pixels (x, y) where `keep` holds, on
+/// each type's full scale; infinite-free (a perfect match gives 120 dB).
+pub fn psnr_where<T: Sample, U: Sample>(
+    a: &Image<T>,
+    b: &Image<U>,
+    keep: impl Fn(usize, usize) -> bool,
+) -> f64 {
     assert!(a.same_geometry(b), "psnr of images of different geometry");
     let (w, h, ch) = (a.width, a.height, a.channels);
     let mut se = 0.0f64;
     let mut n = 0usize;
-    for y in margin..h.saturating_sub(margin) {
-        for x in margin..w.saturating_sub(margin) {
+    for y in 0..h {
+        for x in (0..w).filter(|&x| keep(x, y)) {
             for c in 0..ch {
                 let d = (a.at(x, y, c).to_f32() / T::MAX - b.at(x, y, c).to_f32() / U::MAX) as f64;
                 se += d * d;
@@ -54,6 +68,69 @@ pub fn psnr<T: Sample, U: Sample>(a: &Image<T>, b: &Image<U>, margin: usize) -> 
     }
     let mse = se / n.max(1) as f64;
     10.0 * (1.0 / mse.max(1e-12)).log10()
+}
+
+/// The band around depth steps: every pixel within `radius` px (Euclidean) of a nonzero pixel of
+/// `steps` (one channel), row-major. With `radius` = 3σ of the largest defocus blur, the band
+/// holds every pixel a defocused near object can spill onto (halos).
+pub fn step_band(steps: &Image<u8>, radius: f64) -> Vec<bool> {
+    let (w, h) = (steps.width, steps.height);
+    let r = radius.max(0.0).floor() as isize;
+    let r2 = radius * radius;
+    let mut band = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            if steps.at(x, y, 0) == 0 {
+                continue;
+            }
+            for dy in -r..=r {
+                let v = y as isize + dy;
+                if v < 0 || v >= h as isize {
+                    continue;
+                }
+                for dx in -r..=r {
+                    let u = x as isize + dx;
+                    if u >= 0 && u < w as isize && ((dx * dx + dy * dy) as f64) <= r2 {
+                        band[v as usize * w + u as usize] = true;
+                    }
+                }
+            }
+        }
+    }
+    band
+}
+
+/// The aligned depth oracle: each pixel copied from the frame `labels` names (the frame focused
+/// at its true depth), sampled bilinearly where `at(frame, x, y)` says that frame shows it (its
+/// true motion, parallax included). The best any labelling of perfectly registered frames can do.
+pub fn depth_oracle(
+    frames: &[Image<u8>],
+    labels: &[u8],
+    at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
+) -> Image<u8> {
+    let f0 = &frames[0];
+    let (w, h, ch) = (f0.width, f0.height, f0.channels);
+    let mut data = vec![0u8; w * h * ch];
+    data.par_chunks_mut(w * ch)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for x in 0..w {
+                let k = labels[y * w + x] as usize;
+                let f = &frames[k];
+                let (u, v) = at(k, x, y);
+                let (u, v) = (u.clamp(0.0, (w - 1) as f32), v.clamp(0.0, (h - 1) as f32));
+                let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+                let (fx, fy) = (u - x0 as f32, v - y0 as f32);
+                for c in 0..ch {
+                    let s = |x: usize, y: usize| f.at(x, y, c) as f32;
+                    let top = s(x0, y0) * (1.0 - fx) + s(x1, y0) * fx;
+                    let bot = s(x0, y1) * (1.0 - fx) + s(x1, y1) * fx;
+                    row[x * ch + c] = (top * (1.0 - fy) + bot * fy).round() as u8;
+                }
+            }
+        });
+    Image::from_vec(w, h, ch, data)
 }
 
 #[cfg(test)]
@@ -68,5 +145,33 @@ mod tests {
         assert!((p - 20.0 * (255.0f64 / 10.0).log10()).abs() < 1e-6);
         assert!(tenengrad(&a) > tenengrad(&b));
         assert_eq!(tenengrad(&Image::<u8>::new(20, 20, 1)), 0.0);
+        // Only the right half differs: the left half alone is perfect.
+        let c = Image::<u8>::from_fn(20, 20, 1, |x, _, _| if x < 10 { 0 } else { 245 });
+        let left = psnr_where(&a, &c, |x, _| x < 10);
+        let right = psnr_where(&a, &c, |x, _| x >= 10);
+        assert!(left >= 120.0 && (right - 20.0 * (255.0f64 / 10.0).log10()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn band_reaches_radius_around_steps() {
+        let mut steps = Image::<u8>::new(30, 20, 1);
+        steps.data[10 * 30 + 15] = 255;
+        let band = step_band(&steps, 3.0);
+        assert_eq!(band.iter().filter(|&&b| b).count(), 29); // lattice points in a radius-3 disc
+        assert!(band[10 * 30 + 18] && band[13 * 30 + 15] && !band[12 * 30 + 18]);
+        assert!(step_band(&Image::new(5, 5, 1), 3.0).iter().all(|&b| !b));
+    }
+
+    #[test]
+    fn oracle_samples_the_labelled_frame_where_it_moved() {
+        let a = Image::<u8>::from_fn(8, 4, 1, |x, _, _| 10 * x as u8);
+        let b = Image::<u8>::from_fn(8, 4, 1, |_, y, _| 100 + y as u8);
+        let labels: Vec<u8> = (0..32).map(|k| (k % 8 >= 4) as u8).collect();
+        // Frame 0 shows everything half a pixel to the right.
+        let o = depth_oracle(&[a, b], &labels, |f, x, y| {
+            (x as f32 + if f == 0 { 0.5 } else { 0.0 }, y as f32)
+        });
+        assert_eq!(o.at(1, 0, 0), 15);
+        assert_eq!(o.at(5, 2, 0), 102);
     }
 }

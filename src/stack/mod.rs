@@ -5,6 +5,7 @@ pub mod compose;
 pub mod expansion;
 pub mod focus;
 pub mod fuse;
+pub mod ghosts;
 pub mod graphcut;
 pub mod image;
 pub mod maxflow;

@@ -23,7 +23,7 @@ mod field;
 mod keypoints;
 mod levels;
 mod matching;
-mod ransac;
+pub(crate) mod ransac;
 mod refine;
 
 use super::image::Plane;
