@@ -294,21 +294,21 @@ fn blocked_job(how: Blocked) {
     let status = d.wait_exit(Duration::from_secs(10));
     assert_eq!(status.code(), Some(1), "{how:?}: {}", d.log());
     assert!(d.log().contains("focusd: error: job 1: "), "{}", d.log());
+    // In the order sent: pings until the job is given up (a STATUS saying so), none after.
+    let given_up = notify.wait_for("STATUS=job 1 failed: ", Duration::from_secs(5));
+    let messages = notify.messages();
+    let after: Vec<_> = messages[given_up..]
+        .iter()
+        .filter(|(_, m)| m == "WATCHDOG=1")
+        .collect();
+    assert!(
+        after.is_empty(),
+        "{how:?}: pinged after giving up: {messages:?}"
+    );
+    // Pings went on while the job was stuck but not yet for the timeout.
     let pings = notify.times("WATCHDOG=1");
-    assert!(
-        pings.iter().all(|&t| t < failed_at),
-        "{how:?}: pinged after the job was given up"
-    );
-    // Pings went on while the job made progress and until it had been stuck for the timeout.
     assert!(pings.iter().any(|&t| t > blocked_at), "{how:?}");
-    assert!(
-        notify
-            .messages()
-            .iter()
-            .any(|(_, m)| m.starts_with("STATUS=job 1 failed: ")),
-        "{:?}",
-        notify.messages()
-    );
+    assert!(pings.iter().all(|&t| t < failed_at), "{how:?}");
     assert!(d.outputs().is_empty(), "{:?}", d.outputs());
 }
 
@@ -325,4 +325,39 @@ fn cancelling_a_job_blocked_in_a_read_fails_it_and_the_service_exits() {
 #[test]
 fn sigterm_with_a_job_blocked_in_a_read_fails_it_and_exits_non_zero() {
     blocked_job(Blocked::Terminates);
+}
+
+#[test]
+fn a_second_serve_is_refused_and_the_first_keeps_the_name() {
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &bundle_dir("calm"), false);
+    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .args(["serve", "--address", &bus.address, "--replay"])
+        .arg(bundle_dir("calm"))
+        .arg("--config")
+        .arg(&d.config)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("org.focusd.Focusd is already owned") && err.contains("another focusd"),
+        "{err}"
+    );
+    // The first still answers, under the name.
+    runtime().block_on(async {
+        assert!(capture(&bus).await.is_ok());
+    });
+    assert!(!d.log().contains("lost the bus name"), "{}", d.log());
+}
+
+#[test]
+fn a_dead_bus_ends_the_service_with_an_error() {
+    let mut bus = Bus::start();
+    let mut d = Daemon::start(&bus, &bundle_dir("calm"), false);
+    bus.child.kill().unwrap();
+    bus.child.wait().unwrap();
+    let status = d.wait_exit(Duration::from_secs(10));
+    assert_eq!(status.code(), Some(1), "{}", d.log());
+    assert!(d.log().contains("bus closed"), "{}", d.log());
 }

@@ -22,6 +22,7 @@ use crate::capture::sweep::Monitor;
 use crate::capture::Stage;
 use crate::stack::Progress;
 use anyhow::{Context, Result};
+use futures_util::StreamExt;
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -558,13 +559,11 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
     let conn = opts
         .bus
         .builder()?
-        .name(BUS_NAME)
         .serve_at(OBJECT_PATH, service)
         .build()
         .await
-        .with_context(|| {
-            format!("cannot serve {BUS_NAME} on the {:?} bus (is another focusd running, or does the D-Bus policy not let this user own the name?)", opts.bus)
-        })?;
+        .with_context(|| format!("cannot connect to the {:?} bus", opts.bus))?;
+    let mut lost = own_name(&conn, &opts.bus).await?;
     let iface = conn
         .object_server()
         .interface::<_, Focusd>(OBJECT_PATH)
@@ -593,10 +592,24 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
     let mut tick = tokio::time::interval(Duration::from_millis(250));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut stopping = false;
+    // Why the service ends with an error once its job has stopped: the bus is gone.
+    let mut fatal: Option<anyhow::Error> = None;
     loop {
         tokio::select! {
             _ = term.recv() => stopping = stop(&shared),
             _ = int.recv() => stopping = stop(&shared),
+            Some(_) = lost.next(), if fatal.is_none() => {
+                let e = anyhow::anyhow!("lost the bus name {BUS_NAME}; exiting for systemd to restart the service");
+                tracing::error!("{e}");
+                fatal = Some(e);
+                stopping = stop(&shared);
+            }
+            _ = conn.closed(), if fatal.is_none() => {
+                let e = anyhow::anyhow!("the connection to the {:?} bus closed; exiting for systemd to restart the service", opts.bus);
+                tracing::error!("{e}");
+                fatal = Some(e);
+                stopping = stop(&shared);
+            }
             _ = hup.recv() => reload(&opts.config, &shared),
             _ = tick.tick() => {
                 if let Some((job, error)) = give_up_if_stalled(&shared) {
@@ -620,7 +633,34 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
         .map_err(|_| anyhow::anyhow!("the job thread panicked"))?;
     // The worker's last events (a cancelled job's Failed) go out before the service ends.
     relay.await?;
-    Ok(())
+    fatal.map_or(Ok(()), Err)
+}
+
+/// Takes `BUS_NAME` without replacing its owner and without letting another take it over, and
+/// returns the stream that says when it is lost all the same (the bus restarted, say).
+async fn own_name(conn: &zbus::Connection, bus: &Bus) -> Result<zbus::fdo::NameLostStream> {
+    use zbus::fdo::{RequestNameFlags, RequestNameReply};
+    let dbus = zbus::fdo::DBusProxy::new(conn).await?;
+    let lost = dbus.receive_name_lost_with_args(&[(0, BUS_NAME)]).await?;
+    let taken = || {
+        anyhow::anyhow!(
+            "{BUS_NAME} is already owned on the {bus:?} bus: another focusd serve is running \
+             (stop it first; focusd does not take the name over)"
+        )
+    };
+    match conn
+        .request_name_with_flags(BUS_NAME, RequestNameFlags::DO_NOT_QUEUE)
+        .await
+    {
+        Ok(RequestNameReply::PrimaryOwner) => Ok(lost),
+        Ok(_) | Err(zbus::Error::NameTaken) => Err(taken()),
+        Err(e) => Err(e).with_context(|| {
+            format!(
+                "cannot own {BUS_NAME} on the {bus:?} bus (does the D-Bus policy let this user own \
+                 it? see systemd/org.focusd.Focusd.conf)"
+            )
+        }),
+    }
 }
 
 /// SIGTERM or SIGINT: cancels the running job and closes the worker's inbox, which ends the

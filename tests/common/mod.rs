@@ -297,6 +297,19 @@ impl Notify {
         self.messages.lock().unwrap().clone()
     }
 
+    /// Waits for a message starting with `prefix`, for at most `within`; returns its index.
+    pub fn wait_for(&self, prefix: &str, within: Duration) -> usize {
+        let t = Instant::now();
+        loop {
+            let m = self.messages();
+            if let Some(i) = m.iter().position(|(_, m)| m.starts_with(prefix)) {
+                return i;
+            }
+            assert!(t.elapsed() < within, "no {prefix:?} in {m:?}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
     /// When the messages starting with `prefix` came.
     pub fn times(&self, prefix: &str) -> Vec<Instant> {
         self.messages()
