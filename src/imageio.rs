@@ -217,9 +217,8 @@ pub fn encode<T: Sample>(img: &Image<T>, format: ImageFormat, quality: u8) -> Re
     Ok(buf.into_inner())
 }
 
-/// Writes through a temporary file in the same directory and renames it into place, so a crash
-/// or a full disk never leaves a partial file under the final name.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+/// The temporary file [`write_atomic`] writes `path` through, beside it: `.NAME.PID.tmp`.
+pub fn temp_path(path: &Path) -> Result<PathBuf> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -227,11 +226,17 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let file_name = path
         .file_name()
         .ok_or_else(|| anyhow!("{}: not a file path", path.display()))?;
-    let tmp = dir.join(format!(
+    Ok(dir.join(format!(
         ".{}.{}.tmp",
         file_name.to_string_lossy(),
         std::process::id()
-    ));
+    )))
+}
+
+/// Writes through a temporary file in the same directory and renames it into place, so a crash
+/// or a full disk never leaves a partial file under the final name.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let tmp = temp_path(path)?;
     // A stale temporary file (a crash) or a link planted under its name is removed, and the
     // new one is created exclusively, so the write never follows a link out of the directory.
     let _ = fs::remove_file(&tmp);

@@ -12,7 +12,7 @@ use focusd::stack::metrics::psnr;
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// A person at a terminal: `trigger --wait` under a pseudo-terminal (util-linux `script`) draws
 /// a progress bar from the Progress signals instead of one line per stage, then the path.
@@ -238,18 +238,7 @@ fn sigterm_at(stage: &str) {
         let e = outcome(&job, finished, failed).await.unwrap_err();
         assert_eq!(e, "cancelled", "at {stage}");
     });
-    let t = Instant::now();
-    let status = loop {
-        if let Some(s) = d.child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            t.elapsed() < Duration::from_secs(20),
-            "still running:\n{}",
-            d.log()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = d.wait_exit(Duration::from_secs(20));
     assert_eq!(status.code(), Some(0), "{}", d.log());
     assert!(d.outputs().is_empty(), "at {stage}: {:?}", d.outputs());
     assert!(d.log().contains("replay camera released"), "{}", d.log());

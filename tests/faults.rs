@@ -1,16 +1,17 @@
 //! The fault battery, each fault driven end to end through `focusd serve` on a private bus:
 //! the job ends with Failed and a clear reason, the camera is released (lens back), nothing is
-//! left in the output directory, the daemon keeps serving and the next capture succeeds.
+//! left in the output directory, the daemon keeps serving and the next capture succeeds. A job
+//! blocked in a read is the exception: the service reports it and exits for systemd to restart.
 
 mod common;
 
 use common::{
-    bundle_dir, busctl, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon,
+    bundle_dir, busctl, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon, Notify,
 };
 use futures_util::StreamExt;
 use std::path::Path;
 use std::process::Command;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// One capture on `d`: its path, or its error.
 async fn capture(bus: &Bus) -> Result<String, String> {
@@ -208,4 +209,155 @@ fn calls_with_wrong_arguments_are_refused_and_the_daemon_keeps_serving() {
         assert!(capture(&bus).await.is_ok());
     });
     assert!(!d.log().contains("panicked"));
+}
+
+/// A copy of the calm bundle whose IMU trace is a FIFO, held open for writing (with nothing
+/// written) by the returned file: a read of it blocks for as long as the test keeps it. (Not a
+/// frame: the image decoder seeks first, which a FIFO refuses at once.)
+fn bundle_with_a_blocking_trace() -> (tempfile::TempDir, std::fs::File) {
+    let copy = tempfile::tempdir().unwrap();
+    for e in std::fs::read_dir(bundle_dir("calm")).unwrap().flatten() {
+        std::fs::copy(e.path(), copy.path().join(e.file_name())).unwrap();
+    }
+    let trace = copy.path().join("imu.csv");
+    std::fs::remove_file(&trace).unwrap();
+    let made = Command::new("mkfifo").arg(&trace).status().unwrap();
+    assert!(made.success(), "mkfifo");
+    // Read and write: opening a FIFO so does not wait for a reader.
+    let writer = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&trace)
+        .unwrap();
+    (copy, writer)
+}
+
+/// How a test meets a job blocked in a read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Blocked {
+    /// Leaves it to the watchdog.
+    Waits,
+    /// Cancels it over the bus.
+    Cancels,
+    /// Stops the service with SIGTERM.
+    Terminates,
+}
+
+/// A capture whose read of the IMU trace blocks as the job opens its bundle, on a daemon with a 2 s stall timeout and a
+/// 1 s systemd watchdog: whatever the test does, the job is reported Failed naming the stage,
+/// the watchdog pings stop, and the service exits non-zero (for systemd to restart it).
+fn blocked_job(how: Blocked) {
+    let (bundle, _writer) = bundle_with_a_blocking_trace();
+    let notify = Notify::listen();
+    let socket = notify.path.to_str().unwrap().to_string();
+    let bus = Bus::start();
+    let mut d = Daemon::start_full(
+        &bus,
+        bundle.path(),
+        false,
+        &[],
+        "[service]\nstall_timeout_s = 2\n",
+        &[("NOTIFY_SOCKET", &socket), ("WATCHDOG_USEC", "1000000")],
+    );
+    // Idle, the service pings every half period.
+    std::thread::sleep(Duration::from_millis(1200));
+    assert!(
+        notify.times("WATCHDOG=1").len() >= 2,
+        "{:?}",
+        notify.messages()
+    );
+    let (error, blocked_at, failed_at) = runtime().block_on(async {
+        let (_conn, proxy) = connect(&bus).await;
+        let (finished, failed) = subscribe(&proxy).await;
+        let job = proxy.capture().await.unwrap();
+        let blocked_at = Instant::now();
+        assert_eq!(proxy.state().await.unwrap(), "waiting-still");
+        match how {
+            Blocked::Waits => {}
+            Blocked::Cancels => proxy.cancel(&job).await.unwrap(),
+            Blocked::Terminates => d.signal("-TERM"),
+        }
+        let error = outcome(&job, finished, failed).await.unwrap_err();
+        (error, blocked_at, Instant::now())
+    });
+    let expected = match how {
+        Blocked::Waits => "stalled: no progress for 2 s in stage waiting-still",
+        _ => "cancelled, but the job is blocked in stage waiting-still",
+    };
+    assert!(error.contains(expected), "{how:?}: {error}");
+    assert!(error.contains("exits for systemd to restart it"), "{error}");
+    let waited = failed_at - blocked_at;
+    assert!(
+        waited >= Duration::from_millis(1800),
+        "{how:?}: failed after {waited:?}"
+    );
+    let status = d.wait_exit(Duration::from_secs(10));
+    assert_eq!(status.code(), Some(1), "{how:?}: {}", d.log());
+    assert!(d.log().contains("focusd: error: job 1: "), "{}", d.log());
+    // In the order sent: pings until the job is given up (a STATUS saying so), none after.
+    let given_up = notify.wait_for("STATUS=job 1 failed: ", Duration::from_secs(5));
+    let messages = notify.messages();
+    let after: Vec<_> = messages[given_up..]
+        .iter()
+        .filter(|(_, m)| m == "WATCHDOG=1")
+        .collect();
+    assert!(
+        after.is_empty(),
+        "{how:?}: pinged after giving up: {messages:?}"
+    );
+    // Pings went on while the job was stuck but not yet for the timeout.
+    let pings = notify.times("WATCHDOG=1");
+    assert!(pings.iter().any(|&t| t > blocked_at), "{how:?}");
+    assert!(pings.iter().all(|&t| t < failed_at), "{how:?}");
+    assert!(d.outputs().is_empty(), "{:?}", d.outputs());
+}
+
+#[test]
+fn a_job_blocked_in_a_read_is_failed_by_the_watchdog_and_the_service_exits() {
+    blocked_job(Blocked::Waits);
+}
+
+#[test]
+fn cancelling_a_job_blocked_in_a_read_fails_it_and_the_service_exits() {
+    blocked_job(Blocked::Cancels);
+}
+
+#[test]
+fn sigterm_with_a_job_blocked_in_a_read_fails_it_and_exits_non_zero() {
+    blocked_job(Blocked::Terminates);
+}
+
+#[test]
+fn a_second_serve_is_refused_and_the_first_keeps_the_name() {
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &bundle_dir("calm"), false);
+    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .args(["serve", "--address", &bus.address, "--replay"])
+        .arg(bundle_dir("calm"))
+        .arg("--config")
+        .arg(&d.config)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("org.focusd.Focusd is already owned") && err.contains("another focusd"),
+        "{err}"
+    );
+    // The first still answers, under the name.
+    runtime().block_on(async {
+        assert!(capture(&bus).await.is_ok());
+    });
+    assert!(!d.log().contains("lost the bus name"), "{}", d.log());
+}
+
+#[test]
+fn a_dead_bus_ends_the_service_with_an_error() {
+    let mut bus = Bus::start();
+    let mut d = Daemon::start(&bus, &bundle_dir("calm"), false);
+    bus.child.kill().unwrap();
+    bus.child.wait().unwrap();
+    let status = d.wait_exit(Duration::from_secs(10));
+    assert_eq!(status.code(), Some(1), "{}", d.log());
+    assert!(d.log().contains("bus closed"), "{}", d.log());
 }

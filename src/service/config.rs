@@ -5,7 +5,7 @@ use super::fuse_settings::FuseSettings;
 use crate::backend::iio::IioConfig;
 use crate::backend::v4l2::V4l2Config;
 use crate::capture::sweep::SweepConfig;
-use crate::setting::Invalid;
+use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -53,6 +53,34 @@ impl OutputConfig {
     }
 }
 
+/// How the daemon watches its jobs (the `[service]` table).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServiceConfig {
+    /// Seconds a job may go without progress (or run on after a cancel) before the daemon
+    /// reports it as stalled and exits for systemd to restart it. Below the unit's
+    /// `WatchdogSec=30s`, so focusd reports the stall before systemd kills it.
+    pub stall_timeout_s: u64,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            stall_timeout_s: 20,
+        }
+    }
+}
+
+impl ServiceConfig {
+    pub fn validate(&self) -> Result<(), Invalid> {
+        Bounds::new(1, 3600).check("stall_timeout_s", self.stall_timeout_s)
+    }
+
+    pub fn stall_timeout(&self) -> std::time::Duration {
+        std::time::Duration::from_secs(self.stall_timeout_s)
+    }
+}
+
 /// The whole file.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -64,6 +92,7 @@ pub struct Config {
     pub sweep: Option<SweepConfig>,
     pub fuse: FuseSettings,
     pub output: OutputConfig,
+    pub service: ServiceConfig,
 }
 
 /// A config file that cannot be used; the message is `FILE:LINE: problem`.
@@ -106,6 +135,7 @@ impl Config {
             ("sweep", sweep),
             ("fuse", self.fuse.validate()),
             ("output", self.output.validate()),
+            ("service", self.service.validate()),
         ] {
             if let Err(e) = result {
                 return Err((line_of(text, table, e.key), format!("[{table}] {e}")));
@@ -155,6 +185,7 @@ mod tests {
         assert_eq!(c.sweep, spelled.sweep);
         assert_eq!(c.fuse, spelled.fuse);
         assert_eq!(c.output.format, spelled.output.format);
+        assert_eq!(c.service, spelled.service);
     }
 
     #[test]
@@ -191,6 +222,14 @@ mod tests {
             .contains("sampling_hz = 0.5 is out of range 1..=8000"));
         let text = "[output]\nformat = \"gif\"\n";
         assert!(err(text).1.contains("format = \"gif\" is not one of"));
+        let text = "[service]\nstall_timeout_s = 0\n";
+        assert_eq!(
+            err(text),
+            (
+                Some(2),
+                "[service] stall_timeout_s = 0 is out of range 1..=3600".to_string()
+            )
+        );
     }
 
     #[test]

@@ -5,19 +5,29 @@
 //! and the IMU are used by one job at a time, and a fuse keeps the cores busy for seconds, which
 //! must not stall the bus). The worker reports back through an unbounded tokio channel, which a
 //! task turns into signals.
+//!
+//! The main loop watches the worker (`watchdog`): it sends systemd `WATCHDOG=1` only while the
+//! worker is idle or its job beats. A job without progress for `[service] stall_timeout_s`, or
+//! still running that long after a Cancel or SIGTERM, is blocked where no cancel check reaches
+//! it; it is reported as Failed naming its stage, its temporary files are removed, and the
+//! service exits non-zero (the blocked thread dies with the process, which also closes the
+//! camera), so systemd restarts it clean.
 
 use super::config::Config;
 use super::job::{self, Rig, Source};
 use super::output;
+use super::watchdog::{self, Heartbeat, Stall};
 use crate::backend::replay::faults::Fault;
 use crate::capture::sweep::Monitor;
 use crate::capture::Stage;
 use crate::stack::Progress;
 use anyhow::{Context, Result};
+use futures_util::StreamExt;
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 use tokio::signal::unix::{signal, SignalKind};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use zbus::message::Header;
@@ -81,6 +91,44 @@ pub enum FocusdError {
 struct Running {
     id: String,
     cancel: Arc<AtomicBool>,
+    /// When Cancel or SIGTERM asked the job to stop.
+    cancelled_at: Option<Instant>,
+    /// The stage the job reached, with its steps done and total (for a stall's message).
+    at: (Stage, usize, usize),
+    /// The files the job writes; a stall removes their temporary files.
+    outputs: Vec<PathBuf>,
+}
+
+impl Running {
+    fn cancel(&mut self) {
+        self.cancel.store(true, Ordering::SeqCst);
+        self.cancelled_at.get_or_insert_with(Instant::now);
+    }
+
+    /// Where the job is, in words.
+    fn whereabouts(&self) -> String {
+        match self.at {
+            (Stage::Sweeping, done, total) => format!(
+                "sweeping, at plane {done} (planes 0 to {})",
+                total.saturating_sub(1)
+            ),
+            (stage, ..) => stage.name().to_string(),
+        }
+    }
+
+    /// Why the service gives up on the job.
+    fn stall_message(&self, stall: Stall) -> String {
+        let (at, secs) = (self.whereabouts(), stall.silence.as_secs());
+        let what = if stall.cancelled {
+            format!("cancelled, but the job is blocked in stage {at} (no progress for {secs} s)")
+        } else {
+            format!(
+                "stalled: no progress for {secs} s in stage {at}; the job is blocked (a device \
+                 or file read that does not return?)"
+            )
+        };
+        format!("{what} and cannot be stopped, so focusd exits for systemd to restart it")
+    }
 }
 
 struct State {
@@ -99,6 +147,8 @@ struct State {
 struct Shared {
     state: Mutex<State>,
     source: Source,
+    /// The running job's.
+    beat: Heartbeat,
 }
 
 impl Shared {
@@ -168,17 +218,22 @@ impl Focusd {
         s.jobs += 1;
         let id = format!("{}", s.jobs);
         let cancel = Arc::new(AtomicBool::new(false));
+        let report = s.config.output.report.then_some(report);
         let request = Request {
             id: id.clone(),
             faults: std::mem::take(&mut s.faults),
             config: s.config.clone(),
-            output: image,
-            report: s.config.output.report.then_some(report),
+            output: image.clone(),
+            report: report.clone(),
             cancel: cancel.clone(),
         };
+        self.shared.beat.beat();
         s.running = Some(Running {
             id: id.clone(),
             cancel,
+            cancelled_at: None,
+            at: (Stage::WaitingStill, 0, 0),
+            outputs: std::iter::once(image).chain(report).collect(),
         });
         s.stage = state_of(Stage::WaitingStill);
         drop(s);
@@ -191,12 +246,12 @@ impl Focusd {
 
     /// Stops a running job; it ends with `Failed(job, "cancelled")`.
     fn cancel(&self, job: &str) -> Result<(), FocusdError> {
-        let s = self.shared.lock();
+        let mut s = self.shared.lock();
         // Echoed in the error: a caller's megabyte of text is not.
         let shown: String = job.chars().take(64).collect();
-        match &s.running {
+        match &mut s.running {
             Some(r) if r.id == job => {
-                r.cancel.store(true, Ordering::SeqCst);
+                r.cancel();
                 tracing::info!(job, "cancel requested");
                 Ok(())
             }
@@ -265,11 +320,16 @@ fn state_of(stage: Stage) -> &'static str {
 }
 
 impl Reporter {
-    /// A new stage begins: the state follows it, and memory the last one freed goes back.
-    fn set_stage(&self, stage: Stage) {
+    /// The job is at step `done` of `total` of `stage`: the state follows it, and memory the
+    /// last stage freed goes back.
+    fn set_stage(&self, stage: Stage, done: usize, total: usize) {
+        self.shared.beat.beat();
         crate::malloc::release_freed_memory();
         let state = state_of(stage);
         let mut s = self.shared.lock();
+        if let Some(r) = s.running.as_mut().filter(|r| r.id == self.job) {
+            r.at = (stage, done, total);
+        }
         if s.stage != state {
             s.stage = state;
             drop(s);
@@ -289,11 +349,12 @@ impl Reporter {
 
 impl Monitor for Reporter {
     fn progress(&self, stage: Stage, done: usize, total: usize) {
-        self.set_stage(stage);
+        self.set_stage(stage, done, total);
         self.send(stage, done, total);
     }
 
     fn cancelled(&self) -> bool {
+        self.shared.beat.beat();
         self.cancel.load(Ordering::SeqCst)
     }
 }
@@ -301,7 +362,7 @@ impl Monitor for Reporter {
 impl Progress for Reporter {
     fn stage(&self, stage: crate::stack::Stage, total: usize) {
         let stage = Stage::from(stage);
-        self.set_stage(stage);
+        self.set_stage(stage, 0, total);
         *self.stage.lock().unwrap_or_else(|e| e.into_inner()) = (stage, total);
         self.done.store(0, Ordering::SeqCst);
         self.send(stage, 0, total);
@@ -309,6 +370,7 @@ impl Progress for Reporter {
 
     /// Sends at most one signal per percent of a stage.
     fn advance(&self, steps: usize) {
+        self.shared.beat.beat();
         let (name, total) = *self.stage.lock().unwrap_or_else(|e| e.into_inner());
         let before = self.done.fetch_add(steps, Ordering::SeqCst);
         let after = before + steps;
@@ -319,6 +381,7 @@ impl Progress for Reporter {
     }
 
     fn cancelled(&self) -> bool {
+        self.shared.beat.beat();
         self.cancel.load(Ordering::SeqCst)
     }
 }
@@ -377,6 +440,10 @@ fn worker(
         // Idle before the signal, so a client may start the next job as soon as it hears.
         let event = {
             let mut s = shared.lock();
+            if s.running.as_ref().is_none_or(|x| x.id != r.id) {
+                // The watchdog gave up on the job and reported it.
+                continue;
+            }
             s.running = None;
             s.stage = "idle";
             match result {
@@ -464,7 +531,10 @@ pub fn serve(opts: ServeOptions) -> Result<()> {
         .enable_all()
         .build()
         .context("starting the async runtime")?;
-    runtime.block_on(run(opts, config, source))
+    let result = runtime.block_on(run(opts, config, source));
+    // A job blocked in a read keeps its thread: nothing waits for it.
+    runtime.shutdown_background();
+    result
 }
 
 async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
@@ -481,6 +551,7 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
             faults: opts.faults.clone(),
         }),
         source,
+        beat: Heartbeat::default(),
     });
     let service = Focusd {
         shared: shared.clone(),
@@ -488,13 +559,11 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
     let conn = opts
         .bus
         .builder()?
-        .name(BUS_NAME)
         .serve_at(OBJECT_PATH, service)
         .build()
         .await
-        .with_context(|| {
-            format!("cannot serve {BUS_NAME} on the {:?} bus (is another focusd running, or does the D-Bus policy not let this user own the name?)", opts.bus)
-        })?;
+        .with_context(|| format!("cannot connect to the {:?} bus", opts.bus))?;
+    let mut lost = own_name(&conn, &opts.bus).await?;
     let iface = conn
         .object_server()
         .interface::<_, Focusd>(OBJECT_PATH)
@@ -511,44 +580,129 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
         sd_notify::NotifyState::Ready,
         sd_notify::NotifyState::Status("idle"),
     ]);
-    if let Some(period) = sd_notify::watchdog_enabled() {
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period / 2);
-            loop {
-                tick.tick().await;
-                let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
-            }
-        });
-    }
+    // systemd's period; pinged at half of it.
+    let watchdog = sd_notify::watchdog_enabled();
+    let mut pinged: Option<Instant> = None;
     tracing::info!("serving {BUS_NAME} at {OBJECT_PATH}");
     let (mut term, mut int, mut hup) = (
         signal(SignalKind::terminate())?,
         signal(SignalKind::interrupt())?,
         signal(SignalKind::hangup())?,
     );
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut stopping = false;
+    // Why the service ends with an error once its job has stopped: the bus is gone.
+    let mut fatal: Option<anyhow::Error> = None;
     loop {
         tokio::select! {
-            _ = term.recv() => break,
-            _ = int.recv() => break,
+            _ = term.recv() => stopping = stop(&shared),
+            _ = int.recv() => stopping = stop(&shared),
+            Some(_) = lost.next(), if fatal.is_none() => {
+                let e = anyhow::anyhow!("lost the bus name {BUS_NAME}; exiting for systemd to restart the service");
+                tracing::error!("{e}");
+                fatal = Some(e);
+                stopping = stop(&shared);
+            }
+            _ = conn.closed(), if fatal.is_none() => {
+                let e = anyhow::anyhow!("the connection to the {:?} bus closed; exiting for systemd to restart the service", opts.bus);
+                tracing::error!("{e}");
+                fatal = Some(e);
+                stopping = stop(&shared);
+            }
             _ = hup.recv() => reload(&opts.config, &shared),
+            _ = tick.tick() => {
+                if let Some((job, error)) = give_up_if_stalled(&shared) {
+                    let _ = Focusd::failed(iface.signal_emitter(), &job, &error).await;
+                    return Err(anyhow::anyhow!("job {job}: {error}"));
+                }
+                if let Some(period) = watchdog {
+                    if pinged.is_none_or(|t| t.elapsed() >= period / 2) {
+                        let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+                        pinged = Some(Instant::now());
+                    }
+                }
+                if stopping && worker.is_finished() {
+                    break;
+                }
+            }
         }
     }
+    worker
+        .join()
+        .map_err(|_| anyhow::anyhow!("the job thread panicked"))?;
+    // The worker's last events (a cancelled job's Failed) go out before the service ends.
+    relay.await?;
+    fatal.map_or(Ok(()), Err)
+}
+
+/// Takes `BUS_NAME` without replacing its owner and without letting another take it over, and
+/// returns the stream that says when it is lost all the same (the bus restarted, say).
+async fn own_name(conn: &zbus::Connection, bus: &Bus) -> Result<zbus::fdo::NameLostStream> {
+    use zbus::fdo::{RequestNameFlags, RequestNameReply};
+    let dbus = zbus::fdo::DBusProxy::new(conn).await?;
+    let lost = dbus.receive_name_lost_with_args(&[(0, BUS_NAME)]).await?;
+    let taken = || {
+        anyhow::anyhow!(
+            "{BUS_NAME} is already owned on the {bus:?} bus: another focusd serve is running \
+             (stop it first; focusd does not take the name over)"
+        )
+    };
+    match conn
+        .request_name_with_flags(BUS_NAME, RequestNameFlags::DO_NOT_QUEUE)
+        .await
+    {
+        Ok(RequestNameReply::PrimaryOwner) => Ok(lost),
+        Ok(_) | Err(zbus::Error::NameTaken) => Err(taken()),
+        Err(e) => Err(e).with_context(|| {
+            format!(
+                "cannot own {BUS_NAME} on the {bus:?} bus (does the D-Bus policy let this user own \
+                 it? see systemd/org.focusd.Focusd.conf)"
+            )
+        }),
+    }
+}
+
+/// SIGTERM or SIGINT: cancels the running job and closes the worker's inbox, which ends the
+/// worker once the job has cleaned up. Returns that the service is stopping.
+fn stop(shared: &Shared) -> bool {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
     tracing::info!("stopping");
-    {
-        let mut s = shared.lock();
-        if let Some(r) = &s.running {
-            r.cancel.store(true, Ordering::SeqCst);
-        }
-        // Closing the inbox ends the worker once the cancelled job has cleaned up; its
-        // Failed signal still goes out.
-        s.requests = None;
+    let mut s = shared.lock();
+    if let Some(r) = &mut s.running {
+        r.cancel();
     }
-    tokio::task::spawn_blocking(move || worker.join())
-        .await?
-        .map_err(|_| anyhow::anyhow!("the job thread panicked"))?;
-    relay.await?;
-    Ok(())
+    s.requests = None;
+    true
+}
+
+/// A running job that is stuck (see `watchdog`): takes it from the worker, closes the inbox,
+/// removes its temporary files, and returns its id and the error it fails with.
+fn give_up_if_stalled(shared: &Shared) -> Option<(String, String)> {
+    let mut s = shared.lock();
+    let timeout = s.config.service.stall_timeout();
+    let r = s.running.as_ref()?;
+    let stall = watchdog::stall(
+        shared.beat.silence(),
+        r.cancelled_at.map(|t| t.elapsed()),
+        timeout,
+    )?;
+    let r = s.running.take()?;
+    s.requests = None;
+    s.stage = "idle";
+    drop(s);
+    let error = r.stall_message(stall);
+    tracing::error!(job = %r.id, %error, "failed");
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&format!(
+        "job {} failed: {error}",
+        r.id
+    ))]);
+    for path in &r.outputs {
+        if let Ok(tmp) = crate::imageio::temp_path(path) {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+    Some((r.id, error))
 }
 
 /// SIGHUP: the new config replaces the old only if it is good.

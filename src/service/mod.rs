@@ -1,8 +1,9 @@
 //! The service side: the configuration file, the capture job that the CLI and the daemon both
-//! run, the output directory, and the D-Bus daemon.
+//! run, the output directory, the D-Bus daemon and its watchdog.
 pub mod config;
 pub mod daemon;
 pub mod fuse_settings;
 pub mod job;
 pub mod output;
 pub mod proxy;
+pub mod watchdog;

@@ -5,8 +5,11 @@ use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy};
 use focusd::stack::image::Image;
 use futures_util::StreamExt;
 use std::io::{BufRead, BufReader};
+use std::os::unix::net::UnixDatagram;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tempfile::TempDir;
 
@@ -78,11 +81,26 @@ impl Daemon {
 
     /// With more `focusd serve` arguments (`--fault ...`).
     pub fn start_with(bus: &Bus, bundle: &Path, paced: bool, extra: &[&str]) -> Daemon {
+        Daemon::start_full(bus, bundle, paced, extra, "", &[])
+    }
+
+    /// With more arguments, more config tables after `[output]`, and environment variables.
+    pub fn start_full(
+        bus: &Bus,
+        bundle: &Path,
+        paced: bool,
+        extra: &[&str],
+        config_tables: &str,
+        env: &[(&str, &str)],
+    ) -> Daemon {
         let dir = tempfile::tempdir().unwrap();
         let config = dir.path().join("focusd.toml");
         std::fs::write(
             &config,
-            format!("[output]\ndir = {:?}\n", dir.path().join("out")),
+            format!(
+                "[output]\ndir = {:?}\n{config_tables}",
+                dir.path().join("out")
+            ),
         )
         .unwrap();
         let log = std::fs::File::create(dir.path().join("serve.log")).unwrap();
@@ -95,7 +113,7 @@ impl Daemon {
         if paced {
             cmd.arg("--paced");
         }
-        cmd.args(extra);
+        cmd.args(extra).envs(env.iter().copied());
         let child = cmd.spawn().unwrap();
         let d = Daemon { child, dir, config };
         d.wait_for_log("serving org.focusd.Focusd");
@@ -118,6 +136,18 @@ impl Daemon {
                 "no {what:?} in:\n{}",
                 self.log()
             );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Waits for the daemon to exit, for at most `within`.
+    pub fn wait_exit(&mut self, within: Duration) -> std::process::ExitStatus {
+        let t = Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return s;
+            }
+            assert!(t.elapsed() < within, "still running:\n{}", self.log());
             std::thread::sleep(Duration::from_millis(20));
         }
     }
@@ -220,4 +250,78 @@ pub async fn capture_and_wait(proxy: &Focusd1Proxy<'_>) -> Result<String, String
     let (finished, failed) = subscribe(proxy).await;
     let job = proxy.capture().await.unwrap();
     outcome(&job, finished, failed).await
+}
+
+/// A socket standing in for systemd's `NOTIFY_SOCKET`: it records every sd_notify message
+/// (`READY=1`, `WATCHDOG=1`, `STATUS=...`) with the time it came.
+pub struct Notify {
+    pub path: PathBuf,
+    messages: Arc<Mutex<Vec<(Instant, String)>>>,
+    stop: Arc<AtomicBool>,
+    _dir: TempDir,
+}
+
+impl Notify {
+    pub fn listen() -> Notify {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("notify");
+        let socket = UnixDatagram::bind(&path).unwrap();
+        socket
+            .set_read_timeout(Some(Duration::from_millis(50)))
+            .unwrap();
+        let messages = Arc::new(Mutex::new(Vec::new()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let (m, s) = (messages.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let mut buf = vec![0u8; 4096];
+            while !s.load(Ordering::Relaxed) {
+                if let Ok(n) = socket.recv(&mut buf) {
+                    let text = String::from_utf8_lossy(&buf[..n]);
+                    let mut m = m.lock().unwrap();
+                    for line in text.lines() {
+                        m.push((Instant::now(), line.to_string()));
+                    }
+                }
+            }
+        });
+        Notify {
+            path,
+            messages,
+            stop,
+            _dir: dir,
+        }
+    }
+
+    /// Every message so far, each line on its own.
+    pub fn messages(&self) -> Vec<(Instant, String)> {
+        self.messages.lock().unwrap().clone()
+    }
+
+    /// Waits for a message starting with `prefix`, for at most `within`; returns its index.
+    pub fn wait_for(&self, prefix: &str, within: Duration) -> usize {
+        let t = Instant::now();
+        loop {
+            let m = self.messages();
+            if let Some(i) = m.iter().position(|(_, m)| m.starts_with(prefix)) {
+                return i;
+            }
+            assert!(t.elapsed() < within, "no {prefix:?} in {m:?}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// When the messages starting with `prefix` came.
+    pub fn times(&self, prefix: &str) -> Vec<Instant> {
+        self.messages()
+            .into_iter()
+            .filter(|(_, m)| m.starts_with(prefix))
+            .map(|(t, _)| t)
+            .collect()
+    }
+}
+
+impl Drop for Notify {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
 }
