@@ -207,6 +207,19 @@ mod tests {
         );
         let text = "[fuse]\nquality = 0\n";
         assert_eq!(err(text).0, Some(2));
+        // A still window whose nanoseconds would overflow, one that could never be still, and a
+        // timeout shorter than the window.
+        let text = "[sweep]\nstill_ms = 10000000000000\n";
+        assert_eq!(
+            err(text),
+            (
+                Some(2),
+                "[sweep] still_ms = 10000000000000 is out of range 50..=10000".to_string()
+            )
+        );
+        assert!(err("[sweep]\nstill_ms = 0\n").1.contains("still_ms = 0"));
+        let (line, why) = err("[sweep]\nstill_ms = 500\nstill_timeout_ms = 400\n");
+        assert_eq!(line, Some(3), "{why}");
         let text = "[camera]\nsettle_ms = 5000\n";
         let (line, why) = err(text);
         assert_eq!(
