@@ -78,9 +78,10 @@ impl SweepConfig {
     /// Checks the values a sweep cannot run with; the message names the key and the range.
     pub fn validate(&self, range: (i32, i32)) -> Result<(), Invalid> {
         Bounds::new(2, 64).check("planes", self.planes)?;
-        // Long enough to hold several gyroscope readings at any IMU rate (100 Hz and up; 0 could
-        // never be still), short enough that its nanoseconds cannot overflow.
-        Bounds::new(50, 10_000).check("still_ms", self.still_ms)?;
+        // Long enough to hold the two gyroscope readings a stillness test needs at the IMU
+        // rates of phones (100 Hz and up; 0 could never be still), short enough that its
+        // nanoseconds cannot overflow.
+        Bounds::new(20, 10_000).check("still_ms", self.still_ms)?;
         Bounds::new(self.still_ms, 600_000).check("still_timeout_ms", self.still_timeout_ms)?;
         for (key, v) in [("lens_near", self.lens_near), ("lens_far", self.lens_far)] {
             if let Some(v) = v.filter(|v| !(range.0..=range.1).contains(v)) {

@@ -214,7 +214,7 @@ mod tests {
             err(text),
             (
                 Some(2),
-                "[sweep] still_ms = 10000000000000 is out of range 50..=10000".to_string()
+                "[sweep] still_ms = 10000000000000 is out of range 20..=10000".to_string()
             )
         );
         assert!(err("[sweep]\nstill_ms = 0\n").1.contains("still_ms = 0"));
