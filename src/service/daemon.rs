@@ -324,16 +324,23 @@ impl Reporter {
     /// last stage freed goes back.
     fn set_stage(&self, stage: Stage, done: usize, total: usize) {
         self.shared.beat.beat();
-        crate::malloc::release_freed_memory();
         let state = state_of(stage);
         let mut s = self.shared.lock();
+        let mut began = false;
         if let Some(r) = s.running.as_mut().filter(|r| r.id == self.job) {
+            began = r.at.0 != stage;
             r.at = (stage, done, total);
         }
-        if s.stage != state {
-            s.stage = state;
-            drop(s);
+        let state_changed = s.stage != state;
+        s.stage = state;
+        drop(s);
+        if state_changed {
             let _ = self.events.send(Event::Stage);
+        }
+        if began {
+            // A stage has begun: what the last one freed goes back to the system (as the CLI's
+            // bar does), once per stage and not on every per-plane report.
+            crate::malloc::release_freed_memory();
         }
     }
 
