@@ -1,13 +1,14 @@
 //! Image files in and out: decoding with limits and EXIF orientation, encoding by extension,
 //! atomic writes.
 
+use crate::bounded_read;
 use crate::stack::image::{Image, Sample};
 use anyhow::{anyhow, bail, Context, Result};
 use image::metadata::Orientation;
 use image::{DynamicImage, ImageDecoder, ImageFormat};
 use std::fs;
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::io::{BufRead, BufReader, Cursor, Read, Seek, SeekFrom};
+use std::path::Path;
 
 /// Refuse headers that claim more than this many pixels before allocating (decompression bombs).
 pub const MAX_PIXELS: u64 = 200_000_000;
@@ -27,42 +28,42 @@ impl Decoded {
     }
 }
 
-/// Decodes a JPEG, PNG or TIFF file; gray stays 1 channel, anything else becomes RGB.
+/// What a decoder may allocate besides the pixels: ICC profiles, text chunks, strip buffers. A
+/// camera's ICC profile is a few KiB; a PNG whose iCCP chunk inflates to hundreds of MiB is
+/// refused while its header is read.
+const ANCILLARY_BYTES: u64 = 16 << 20;
+
+/// A frame's header: enough to plan the memory of a stack before any frame is decoded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Header {
+    pub width: usize,
+    pub height: usize,
+    /// 1 for gray, 3 for colour (alpha is dropped).
+    pub channels: usize,
+    /// 1 for 8-bit samples, 2 for 16-bit.
+    pub sample_bytes: usize,
+}
+
+/// Reads a frame's header only (for JPEG: the file up to its end-of-image marker), with the
+/// same checks as [`load`].
+pub fn probe(path: &Path) -> Result<Header> {
+    let (decoder, _) = open_decoder(path)?;
+    header(path, &decoder)
+}
+
+/// Decodes a JPEG, PNG or TIFF file; gray stays 1 channel, anything else becomes RGB. The file
+/// must be a regular file ([`bounded_read`]); the decoder may allocate the pixels its header
+/// declares (at most [`MAX_PIXELS`]) and [`ANCILLARY_BYTES`] more.
 pub fn load(path: &Path) -> Result<Decoded> {
     let name = path.display();
-    let reader = image::ImageReader::open(path)
-        .with_context(|| format!("{name}: cannot open"))?
-        .with_guessed_format()
-        .with_context(|| format!("{name}: cannot read"))?;
-    if reader.format().is_none() {
-        bail!("{name}: not a JPEG, PNG or TIFF image");
-    }
-    let (w, h) = reader
-        .into_dimensions()
-        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
-    if w as u64 * h as u64 > MAX_PIXELS {
-        bail!("{name}: {w}x{h} is larger than the {MAX_PIXELS}-pixel limit");
-    }
-    let mut reader = image::ImageReader::open(path)
-        .with_context(|| format!("{name}: cannot open"))?
-        .with_guessed_format()
-        .with_context(|| format!("{name}: cannot read"))?;
-    if reader.format() == Some(ImageFormat::Jpeg) {
-        let bytes = fs::read(path).with_context(|| format!("{name}: cannot read"))?;
-        if !jpeg_complete(&bytes) {
-            bail!("{name}: corrupt or truncated image: the JPEG data ends before its end-of-image marker");
-        }
-    }
+    let (mut decoder, _) = open_decoder(path)?;
+    let Header { width, height, .. } = header(path, &decoder)?;
     let mut limits = image::Limits::default();
-    limits.max_image_width = Some(w);
-    limits.max_image_height = Some(h);
-    limits.max_alloc = Some(MAX_PIXELS * 8);
-    reader.limits(limits);
+    limits.max_image_width = Some(width as u32);
+    limits.max_image_height = Some(height as u32);
+    limits.max_alloc = Some(decoder.total_bytes().saturating_add(ANCILLARY_BYTES));
     let corrupt = |e| anyhow!("{name}: corrupt or truncated image: {e}");
-    let mut decoder = reader.into_decoder().map_err(corrupt)?;
-    if decoder.total_bytes() > MAX_PIXELS * 8 {
-        bail!("{name}: {w}x{h} is larger than the {MAX_PIXELS}-pixel limit");
-    }
+    decoder.set_limits(limits).map_err(corrupt)?;
     // Phones store portrait shots as landscape pixels plus an EXIF orientation: the frames are
     // turned upright here, so a stack mixing orientations still registers, and the output's
     // copy of the reference's EXIF says upright (`exif_upright`).
@@ -70,6 +71,218 @@ pub fn load(path: &Path) -> Result<Decoded> {
     let mut img = DynamicImage::from_decoder(decoder).map_err(corrupt)?;
     img.apply_orientation(orientation);
     Ok(from_dynamic(img))
+}
+
+/// The header's geometry, refused when focusd cannot fuse it faithfully.
+fn header(path: &Path, decoder: &impl ImageDecoder) -> Result<Header> {
+    let name = path.display();
+    let (w, h) = decoder.dimensions();
+    if w as u64 * h as u64 > MAX_PIXELS {
+        bail!("{name}: {w}x{h} is larger than the {MAX_PIXELS}-pixel limit");
+    }
+    let color = decoder.color_type();
+    let sample_bytes = usize::from(color.bytes_per_pixel() / color.channel_count());
+    if sample_bytes > 2 {
+        // Floating-point samples have no white point: values above 1.0 would clip to white.
+        bail!(
+            "{name}: {color:?} samples (32-bit floating point) are not supported; convert the \
+             stack to 16-bit integer TIFF or PNG with one scale for every frame"
+        );
+    }
+    Ok(Header {
+        width: w as usize,
+        height: h as usize,
+        channels: if color.has_color() { 3 } else { 1 },
+        sample_bytes,
+    })
+}
+
+/// A decoder over the file with its header read under [`ANCILLARY_BYTES`], and its format.
+fn open_decoder(path: &Path) -> Result<(impl ImageDecoder, ImageFormat)> {
+    let name = path.display();
+    let cannot_read = |e: std::io::Error| anyhow!("{name}: cannot read: {e}");
+    let file = bounded_read::open(path).map_err(|e| anyhow!("{name}: cannot open: {e}"))?;
+    let mut file = BufReader::new(file);
+    let format = image::guess_format(file.fill_buf().map_err(cannot_read)?)
+        .ok()
+        .filter(|f| matches!(f, ImageFormat::Jpeg | ImageFormat::Png | ImageFormat::Tiff))
+        .ok_or_else(|| anyhow!("{name}: not a JPEG, PNG or TIFF image"))?;
+    let source = match format {
+        // The JPEG decoder reads its whole input first: it gets the file up to its
+        // end-of-image marker, so trailing bytes are never read.
+        ImageFormat::Jpeg => Source::Memory(Cursor::new(jpeg_until_end(path, file)?)),
+        ImageFormat::Tiff => {
+            single_page(path)?;
+            Source::File(file)
+        }
+        _ => Source::File(file),
+    };
+    let mut reader = image::ImageReader::with_format(source, format);
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(ANCILLARY_BYTES);
+    reader.limits(limits);
+    let decoder = reader
+        .into_decoder()
+        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
+    Ok((decoder, format))
+}
+
+/// A multipage TIFF's first page is often a thumbnail: fusing it silently would be wrong.
+fn single_page(path: &Path) -> Result<()> {
+    let name = path.display();
+    let file = bounded_read::open(path).with_context(|| format!("{name}: cannot read"))?;
+    let mut tiff = tiff::decoder::Decoder::new(BufReader::new(file))
+        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
+    let mut pages = 1;
+    while tiff.more_images() && pages <= 64 {
+        tiff.next_image()
+            .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
+        pages += 1;
+    }
+    if pages > 1 {
+        bail!(
+            "{name}: a multipage TIFF ({pages} pages or more); focusd fuses single images: save \
+             the page you mean as a file of its own"
+        );
+    }
+    Ok(())
+}
+
+/// The JPEG file from its start to its end-of-image marker, read no further. The decoder fills
+/// a truncated file's missing rows with grey without an error, so a file that ends before the
+/// marker is refused here. The marker segments are walked to the first start-of-scan (skipping
+/// APP segments, whose EXIF thumbnails hold markers of their own); after it FF D9 can only be the
+/// marker, since scan data escapes FF as FF 00. The frame header (SOF) bounds what may follow:
+/// compressed data several times the size of its raw pixels is not a photograph.
+fn jpeg_until_end(path: &Path, mut file: impl BufRead) -> Result<Vec<u8>> {
+    let name = path.display();
+    let truncated = || {
+        anyhow!(
+            "{name}: corrupt or truncated image: the JPEG data ends before its end-of-image marker"
+        )
+    };
+    let cannot_read = |e: std::io::Error| anyhow!("{name}: cannot read: {e}");
+    let mut out = Vec::new();
+    let next = |file: &mut dyn BufRead, out: &mut Vec<u8>| -> Result<u8> {
+        let mut b = [0u8];
+        file.read_exact(&mut b).map_err(|e| match e.kind() {
+            std::io::ErrorKind::UnexpectedEof => truncated(),
+            _ => cannot_read(e),
+        })?;
+        out.push(b[0]);
+        Ok(b[0])
+    };
+    if (next(&mut file, &mut out)?, next(&mut file, &mut out)?) != (0xFF, 0xD8) {
+        bail!("{name}: corrupt or unsupported image: no JPEG start-of-image marker");
+    }
+    // Before the frame header is known: the segments ahead of it (EXIF, ICC, thumbnails).
+    let mut cap = ANCILLARY_BYTES as usize;
+    loop {
+        if next(&mut file, &mut out)? != 0xFF {
+            bail!("{name}: corrupt or unsupported image: JPEG marker expected");
+        }
+        let mut marker = next(&mut file, &mut out)?;
+        while marker == 0xFF {
+            marker = next(&mut file, &mut out)?;
+        }
+        if marker == 0xD9 {
+            bail!("{name}: corrupt or unsupported image: JPEG ends before any image data");
+        }
+        let len = u16::from_be_bytes([next(&mut file, &mut out)?, next(&mut file, &mut out)?]);
+        let start = out.len();
+        let body = usize::from(len).saturating_sub(2);
+        if out.len() + body > cap {
+            bail!("{name}: corrupt or unsupported image: JPEG headers over {cap} bytes");
+        }
+        out.resize(start + body, 0);
+        file.read_exact(&mut out[start..])
+            .map_err(|e| match e.kind() {
+                std::io::ErrorKind::UnexpectedEof => truncated(),
+                _ => cannot_read(e),
+            })?;
+        // SOF0..SOF15 except DHT (C4), JPG (C8) and DAC (CC): precision, height, width,
+        // components.
+        if (0xC0..=0xCF).contains(&marker) && ![0xC4, 0xC8, 0xCC].contains(&marker) {
+            let &[_, h0, h1, w0, w1, c, ..] = &out[start..] else {
+                return Err(truncated());
+            };
+            let samples = usize::from(u16::from_be_bytes([h0, h1]))
+                * usize::from(u16::from_be_bytes([w0, w1]))
+                * usize::from(c);
+            cap = cap.saturating_add(samples.saturating_mul(4));
+        }
+        if marker == 0xDA {
+            break;
+        }
+    }
+    // The scan data, in the reader's own chunks, to the first FF D9.
+    let mut ff = false;
+    loop {
+        let buf = file.fill_buf().map_err(cannot_read)?;
+        if buf.is_empty() {
+            return Err(truncated());
+        }
+        let end = if ff && buf[0] == 0xD9 {
+            Some(1)
+        } else {
+            buf.windows(2)
+                .position(|w| w == [0xFF, 0xD9])
+                .map(|i| i + 2)
+        };
+        let take = end.unwrap_or(buf.len());
+        out.extend_from_slice(&buf[..take]);
+        ff = buf[take - 1] == 0xFF;
+        file.consume(take);
+        if end.is_some() {
+            return Ok(out);
+        }
+        if out.len() > cap {
+            bail!(
+                "{name}: corrupt or unsupported image: over {cap} bytes of JPEG data without an \
+                 end-of-image marker"
+            );
+        }
+    }
+}
+
+/// Where a decoder reads from: the file itself, or (JPEG) the bytes read up to its end marker.
+enum Source {
+    File(BufReader<fs::File>),
+    Memory(Cursor<Vec<u8>>),
+}
+
+impl Read for Source {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Source::File(r) => r.read(buf),
+            Source::Memory(r) => r.read(buf),
+        }
+    }
+}
+
+impl BufRead for Source {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        match self {
+            Source::File(r) => r.fill_buf(),
+            Source::Memory(r) => r.fill_buf(),
+        }
+    }
+
+    fn consume(&mut self, n: usize) {
+        match self {
+            Source::File(r) => r.consume(n),
+            Source::Memory(r) => r.consume(n),
+        }
+    }
+}
+
+impl Seek for Source {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        match self {
+            Source::File(r) => r.seek(pos),
+            Source::Memory(r) => r.seek(pos),
+        }
+    }
 }
 
 /// Sets the Orientation tag of an EXIF block (a TIFF structure) to 1, upright, in place; a
@@ -133,34 +346,6 @@ pub fn load_rgb8(path: &Path) -> Result<Image<u8>> {
     })
 }
 
-/// Whether a JPEG's entropy-coded data is followed by its end-of-image marker. The decoder
-/// fills a truncated file's missing rows with grey without an error, so this is checked
-/// first: the marker segments are walked to the first start-of-scan (skipping APP segments,
-/// whose EXIF thumbnails hold markers of their own), and after it FF D9 can only be the
-/// marker, since scan data escapes FF as FF 00.
-fn jpeg_complete(b: &[u8]) -> bool {
-    if !b.starts_with(&[0xFF, 0xD8]) {
-        return false;
-    }
-    let mut i = 2;
-    while i + 4 <= b.len() {
-        if b[i] != 0xFF {
-            return false;
-        }
-        let marker = b[i + 1];
-        if marker == 0xFF {
-            i += 1;
-            continue;
-        }
-        let len = usize::from(u16::from_be_bytes([b[i + 2], b[i + 3]]));
-        if marker == 0xDA {
-            return b[i + 2..].windows(2).any(|w| w == [0xFF, 0xD9]);
-        }
-        i += 2 + len;
-    }
-    false
-}
-
 fn from_dynamic(img: DynamicImage) -> Decoded {
     let (w, h) = (img.width() as usize, img.height() as usize);
     let gray = !img.color().has_color();
@@ -217,47 +402,8 @@ pub fn encode<T: Sample>(img: &Image<T>, format: ImageFormat, quality: u8) -> Re
     Ok(buf.into_inner())
 }
 
-/// The temporary file [`write_atomic`] writes `path` through, beside it: `.NAME.PID.tmp`.
-pub fn temp_path(path: &Path) -> Result<PathBuf> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let file_name = path
-        .file_name()
-        .ok_or_else(|| anyhow!("{}: not a file path", path.display()))?;
-    Ok(dir.join(format!(
-        ".{}.{}.tmp",
-        file_name.to_string_lossy(),
-        std::process::id()
-    )))
-}
-
-/// Writes through a temporary file in the same directory and renames it into place, so a crash
-/// or a full disk never leaves a partial file under the final name.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = temp_path(path)?;
-    // A stale temporary file (a crash) or a link planted under its name is removed, and the
-    // new one is created exclusively, so the write never follows a link out of the directory.
-    let _ = fs::remove_file(&tmp);
-    let result = (|| {
-        let mut f = fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        bail!("{}: cannot write: {e}", path.display());
-    }
-    Ok(())
-}
-
 /// Encodes by `path`'s extension and writes atomically.
 pub fn save<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
     let bytes = encode(img, format_for(path)?, quality)?;
-    write_atomic(path, &bytes)
+    crate::outputs::write_atomic(path, &bytes)
 }

@@ -44,7 +44,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("focusd: error: {e:#}");
+            eprintln!("focusd: error: {}", focusd::clip::clip(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }

@@ -127,6 +127,7 @@ fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
         }
 
         // 3. busctl.
+        let earlier_job = job;
         let (finished, failed) = subscribe(&proxy).await;
         let o = busctl(&bus, &["Capture"]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -136,7 +137,12 @@ fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
             .trim_start_matches("s ")
             .trim_matches('"')
             .to_string();
-        assert_eq!(job, "3", "{reply}");
+        // Job ids are 128 random bits: no caller can guess another's.
+        assert!(
+            job.len() == 32 && job.chars().all(|c| c.is_ascii_hexdigit()),
+            "{reply}"
+        );
+        assert_ne!(job, earlier_job);
         let third = outcome(&job, finished, failed).await.unwrap();
         assert!(psnr(&load(Path::new(&third)), &truth, 0) > 24.0);
     });
@@ -242,4 +248,200 @@ fn sigterm_at(stage: &str) {
     assert_eq!(status.code(), Some(0), "{}", d.log());
     assert!(d.outputs().is_empty(), "at {stage}: {:?}", d.outputs());
     assert!(d.log().contains("replay camera released"), "{}", d.log());
+}
+
+#[test]
+fn only_the_user_who_started_a_job_or_root_may_cancel_it() {
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("skipped: calling as another user needs root (CI runs as root)");
+        return;
+    }
+    let (bus, _config) = Bus::start_open();
+    let _d = Daemon::start(&bus, &bundle_dir("shaken"), true);
+    runtime().block_on(async {
+        let (_conn, proxy) = connect(&bus).await;
+        let (finished, failed) = subscribe(&proxy).await;
+        let job = proxy.capture().await.unwrap();
+        // The same call as user nobody: refused, and the job runs on.
+        let o = Command::new("setpriv")
+            .args(["--reuid=65534", "--regid=65534", "--clear-groups", "busctl"])
+            .arg(format!("--address={}", bus.address))
+            .args(["call", "org.focusd.Focusd", "/org/focusd/Focusd"])
+            .args(["org.focusd.Focusd1", "Cancel", "s", &job])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "nobody cancelled root's job");
+        assert!(
+            err.contains("uid 0") && err.contains("only that user or root"),
+            "{err}"
+        );
+        assert_ne!(proxy.state().await.unwrap(), "idle");
+        // Its owner may.
+        proxy.cancel(&job).await.unwrap();
+        assert_eq!(
+            outcome(&job, finished, failed).await.unwrap_err(),
+            "cancelled"
+        );
+    });
+}
+
+/// What the fake feedbackd and notification daemon were asked, in order.
+type Calls = std::sync::Arc<std::sync::Mutex<Vec<String>>>;
+
+struct FakeFeedbackd(Calls);
+
+#[zbus::interface(name = "org.sigxcpu.Feedback")]
+impl FakeFeedbackd {
+    fn trigger_feedback(
+        &self,
+        app_id: &str,
+        event: &str,
+        _hints: std::collections::HashMap<String, zbus::OwnedVariant>,
+        timeout: i32,
+    ) -> u32 {
+        let mut c = self.0.lock().unwrap();
+        c.push(format!("feedback {app_id} {event} {timeout}"));
+        c.len() as u32
+    }
+}
+
+struct FakeNotifications(Calls);
+
+#[zbus::interface(name = "org.freedesktop.Notifications")]
+impl FakeNotifications {
+    #[allow(clippy::too_many_arguments)]
+    fn notify(
+        &self,
+        app_name: &str,
+        _replaces_id: u32,
+        _app_icon: &str,
+        summary: &str,
+        body: &str,
+        _actions: Vec<String>,
+        hints: std::collections::HashMap<String, zbus::OwnedVariant>,
+        _expire_timeout: i32,
+    ) -> u32 {
+        let image = hints
+            .get("image-path")
+            .and_then(|v| String::try_from(v.clone()).ok())
+            .unwrap_or_default();
+        let mut c = self.0.lock().unwrap();
+        c.push(format!("notify {app_name} {summary} | {body} | {image}"));
+        c.len() as u32
+    }
+}
+
+/// Serves the fakes on `bus` under their real names, recording into one list.
+async fn fake_desktop(bus: &Bus) -> (Calls, Vec<zbus::Connection>) {
+    let calls = Calls::default();
+    let mut conns = Vec::new();
+    for (name, path) in [
+        ("org.sigxcpu.Feedback", "/org/sigxcpu/Feedback"),
+        (
+            "org.freedesktop.Notifications",
+            "/org/freedesktop/Notifications",
+        ),
+    ] {
+        let addr: zbus::Address = bus.address.parse().unwrap();
+        let b = zbus::connection::Builder::address(addr).name(name);
+        let b = if name == "org.sigxcpu.Feedback" {
+            b.serve_at(path, FakeFeedbackd(calls.clone()))
+        } else {
+            b.serve_at(path, FakeNotifications(calls.clone()))
+        };
+        conns.push(b.build().await.unwrap());
+    }
+    (calls, conns)
+}
+
+/// The calls recorded once `n` have come (they are sent beside the signals, not before them).
+async fn calls_after(calls: &Calls, n: usize) -> Vec<String> {
+    for _ in 0..200 {
+        if calls.lock().unwrap().len() >= n {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    calls.lock().unwrap().clone()
+}
+
+#[test]
+fn the_person_holding_the_phone_is_told_to_hold_still_and_when_it_is_done() {
+    let bus = Bus::start();
+    let _d = Daemon::start(&bus, &bundle_dir("calm"), false);
+    runtime().block_on(async {
+        let (calls, _fakes) = fake_desktop(&bus).await;
+        let (_conn, proxy) = connect(&bus).await;
+        let path = capture_and_wait(&proxy).await.unwrap();
+        let seen = calls_after(&calls, 3).await;
+        assert_eq!(
+            seen,
+            [
+                "feedback org.focusd.Focusd camera-focus -1".to_string(),
+                "feedback org.focusd.Focusd camera-shutter -1".to_string(),
+                format!("notify focusd Focus stack saved | {path} | file://{path}"),
+            ]
+        );
+    });
+}
+
+#[test]
+fn a_failed_capture_gives_the_failure_feedback_and_says_why() {
+    let bus = Bus::start();
+    let _d = Daemon::start_with(
+        &bus,
+        &bundle_dir("calm"),
+        false,
+        &["--fault", "camera-gone:2"],
+    );
+    runtime().block_on(async {
+        let (calls, _fakes) = fake_desktop(&bus).await;
+        let (_conn, proxy) = connect(&bus).await;
+        let error = capture_and_wait(&proxy).await.unwrap_err();
+        let mut seen = calls_after(&calls, 3).await;
+        // The failure's feedback and notification go out together, in either order.
+        seen[1..].sort();
+        assert_eq!(
+            seen,
+            [
+                "feedback org.focusd.Focusd camera-focus -1".to_string(),
+                "feedback org.focusd.Focusd phone-failure -1".to_string(),
+                format!("notify focusd Focus stack failed | {error} | "),
+            ]
+        );
+    });
+}
+
+#[test]
+fn without_an_output_dir_pictures_land_in_the_users_localised_pictures_folder() {
+    let home = tempfile::tempdir().unwrap();
+    let config = home.path().join(".config");
+    std::fs::create_dir_all(&config).unwrap();
+    std::fs::write(
+        config.join("user-dirs.dirs"),
+        "# written by xdg-user-dirs-update\nXDG_PICTURES_DIR=\"$HOME/Bilder\"\n",
+    )
+    .unwrap();
+    let bus = Bus::start();
+    let home_str = home.path().to_str().unwrap();
+    let _d = Daemon::start_full(
+        &bus,
+        Some(&bundle_dir("calm")),
+        false,
+        &[],
+        "[output]\nreport = false\n",
+        &[("HOME", home_str), ("XDG_CONFIG_HOME", "")],
+    );
+    // The folder is created when the service starts, before any capture.
+    assert!(home.path().join("Bilder/focusd").is_dir());
+    runtime().block_on(async {
+        let (_conn, proxy) = connect(&bus).await;
+        let path = capture_and_wait(&proxy).await.unwrap();
+        assert_eq!(
+            Path::new(&path).parent(),
+            Some(home.path().join("Bilder/focusd").as_path())
+        );
+    });
 }

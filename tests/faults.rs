@@ -151,8 +151,15 @@ fn two_triggers_at_once_get_one_job_and_one_busy() {
     assert_eq!(ok, 1, "{a:?}\n{b:?}");
     let busy = if a.status.success() { &b } else { &a };
     let err = String::from_utf8_lossy(&busy.stderr);
+    // The running job is named by its id: 32 hex digits, not a counter another caller could
+    // guess.
+    let id = err
+        .split("org.focusd.Error.Busy: job ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .unwrap_or_default();
     assert!(
-        err.contains("org.focusd.Error.Busy: job 1 is running"),
+        id.len() == 32 && id.chars().all(|c| c.is_ascii_hexdigit()) && err.contains("is running"),
         "{err}"
     );
 }
@@ -211,25 +218,24 @@ fn calls_with_wrong_arguments_are_refused_and_the_daemon_keeps_serving() {
     assert!(!d.log().contains("panicked"));
 }
 
-/// A copy of the calm bundle whose IMU trace is a FIFO, held open for writing (with nothing
-/// written) by the returned file: a read of it blocks for as long as the test keeps it. (Not a
-/// frame: the image decoder seeks first, which a FIFO refuses at once.)
-fn bundle_with_a_blocking_trace() -> (tempfile::TempDir, std::fs::File) {
-    let copy = tempfile::tempdir().unwrap();
-    for e in std::fs::read_dir(bundle_dir("calm")).unwrap().flatten() {
-        std::fs::copy(e.path(), copy.path().join(e.file_name())).unwrap();
-    }
-    let trace = copy.path().join("imu.csv");
-    std::fs::remove_file(&trace).unwrap();
-    let made = Command::new("mkfifo").arg(&trace).status().unwrap();
+/// A sysfs tree with one IIO device whose `name` attribute is a FIFO, held open for writing
+/// (with nothing written) by the returned file: the job's read of it blocks for as long as the
+/// test keeps it, as a read of a hung driver's attribute does. (The files focusd parses, a
+/// bundle's, are refused when they are FIFOs; an attribute is the kernel's.)
+fn sysfs_with_a_blocking_attribute() -> (tempfile::TempDir, std::fs::File) {
+    let tree = tempfile::tempdir().unwrap();
+    let device = tree.path().join("sys/bus/iio/devices/iio:device0");
+    std::fs::create_dir_all(&device).unwrap();
+    let name = device.join("name");
+    let made = Command::new("mkfifo").arg(&name).status().unwrap();
     assert!(made.success(), "mkfifo");
     // Read and write: opening a FIFO so does not wait for a reader.
     let writer = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
-        .open(&trace)
+        .open(&name)
         .unwrap();
-    (copy, writer)
+    (tree, writer)
 }
 
 /// How a test meets a job blocked in a read.
@@ -243,20 +249,25 @@ enum Blocked {
     Terminates,
 }
 
-/// A capture whose read of the IMU trace blocks as the job opens its bundle, on a daemon with a 2 s stall timeout and a
-/// 1 s systemd watchdog: whatever the test does, the job is reported Failed naming the stage,
-/// the watchdog pings stop, and the service exits non-zero (for systemd to restart it).
+/// A capture whose read of an IIO attribute blocks as the job opens the IMU, on a daemon with a
+/// 2 s stall timeout and a 1 s systemd watchdog: whatever the test does, the job is reported
+/// Failed naming the stage, the watchdog pings stop, and the service exits non-zero (for
+/// systemd to restart it).
 fn blocked_job(how: Blocked) {
-    let (bundle, _writer) = bundle_with_a_blocking_trace();
+    let (sysfs, _writer) = sysfs_with_a_blocking_attribute();
     let notify = Notify::listen();
     let socket = notify.path.to_str().unwrap().to_string();
     let bus = Bus::start();
+    let tables = format!(
+        "[imu]\nsysfs_root = {:?}\n[service]\nstall_timeout_s = 2\n",
+        sysfs.path().join("sys")
+    );
     let mut d = Daemon::start_full(
         &bus,
-        bundle.path(),
+        None,
         false,
         &[],
-        "[service]\nstall_timeout_s = 2\n",
+        &tables,
         &[("NOTIFY_SOCKET", &socket), ("WATCHDOG_USEC", "1000000")],
     );
     // Idle, the service pings every half period.
@@ -266,7 +277,7 @@ fn blocked_job(how: Blocked) {
         "{:?}",
         notify.messages()
     );
-    let (error, blocked_at, failed_at) = runtime().block_on(async {
+    let (job, error, blocked_at, failed_at) = runtime().block_on(async {
         let (_conn, proxy) = connect(&bus).await;
         let (finished, failed) = subscribe(&proxy).await;
         let job = proxy.capture().await.unwrap();
@@ -278,7 +289,7 @@ fn blocked_job(how: Blocked) {
             Blocked::Terminates => d.signal("-TERM"),
         }
         let error = outcome(&job, finished, failed).await.unwrap_err();
-        (error, blocked_at, Instant::now())
+        (job, error, blocked_at, Instant::now())
     });
     let expected = match how {
         Blocked::Waits => "stalled: no progress for 2 s in stage waiting-still",
@@ -293,9 +304,16 @@ fn blocked_job(how: Blocked) {
     );
     let status = d.wait_exit(Duration::from_secs(10));
     assert_eq!(status.code(), Some(1), "{how:?}: {}", d.log());
-    assert!(d.log().contains("focusd: error: job 1: "), "{}", d.log());
+    assert!(
+        d.log().contains(&format!("focusd: error: job {job}: ")),
+        "{}",
+        d.log()
+    );
     // In the order sent: pings until the job is given up (a STATUS saying so), none after.
-    let given_up = notify.wait_for("STATUS=job 1 failed: ", Duration::from_secs(5));
+    let given_up = notify.wait_for(
+        &format!("STATUS=job {job} failed: "),
+        Duration::from_secs(5),
+    );
     let messages = notify.messages();
     let after: Vec<_> = messages[given_up..]
         .iter()

@@ -2,11 +2,14 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
-use focusd::imageio::{self as io, Decoded};
+use focusd::imageio::{self as io, Decoded, Header};
+use focusd::outputs::Outputs;
 use focusd::service::fuse_settings::FuseSettings;
 use focusd::stack::fuse::{fuse, Alignment, FuseError};
 use focusd::stack::image::{Image, Sample};
+use focusd::stack::memory;
 use focusd::stack::metrics::tenengrad;
+use focusd::stack::params::FuseParams;
 use focusd::stack::register::{Placement, RegisterError};
 use focusd::stack::transform::{FrameTransform, Transforms};
 use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
@@ -58,22 +61,6 @@ fn check_args(a: &FuseArgs) -> Result<()> {
             );
         }
     }
-    for out in std::iter::once(&a.output)
-        .chain(&a.depthmap)
-        .chain(&a.save_transforms)
-    {
-        let dir = match out.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        if !dir.is_dir() {
-            bail!(
-                "{}: output directory {} does not exist",
-                out.display(),
-                dir.display()
-            );
-        }
-    }
     io::format_for(&a.output)?;
     if a.save_transforms
         .as_ref()
@@ -92,27 +79,29 @@ fn check_args(a: &FuseArgs) -> Result<()> {
 
 pub fn run(a: &FuseArgs) -> Result<()> {
     check_args(a)?;
+    let outputs: Vec<&Path> = std::iter::once(&a.output)
+        .chain(&a.depthmap)
+        .chain(&a.save_transforms)
+        .map(PathBuf::as_path)
+        .collect();
+    let inputs: Vec<&Path> = a.frames.iter().map(PathBuf::as_path).collect();
+    let outs = Outputs::check(&outputs, &inputs)?;
+    check_memory(a)?;
     let t0 = Instant::now();
     let decoded: Vec<Decoded> = a
         .frames
         .par_iter()
         .map(|p| io::load(p))
         .collect::<Result<_>>()?;
-    let (w, h) = decoded[0].dimensions();
-    for (d, p) in decoded.iter().zip(&a.frames).skip(1) {
-        if d.dimensions() != (w, h) {
-            let (dw, dh) = d.dimensions();
-            bail!(
-                "{}: frame is {dw}x{dh} but {} is {w}x{h}; all frames must have the same size",
-                p.display(),
-                a.frames[0].display()
-            );
-        }
-    }
     let load_time = t0.elapsed();
     let sixteen = decoded.iter().any(|d| matches!(d, Decoded::U16(_)));
     if sixteen {
-        run_typed(a, decoded.into_iter().map(to_u16).collect(), load_time)
+        run_typed(
+            a,
+            decoded.into_iter().map(to_u16).collect(),
+            load_time,
+            outs,
+        )
     } else {
         let frames = decoded
             .into_iter()
@@ -121,8 +110,62 @@ pub fn run(a: &FuseArgs) -> Result<()> {
                 Decoded::U16(_) => unreachable!("checked above"),
             })
             .collect();
-        run_typed(a, frames, load_time)
+        run_typed(a, frames, load_time, outs)
     }
+}
+
+/// Reads every frame's header and refuses, before any frame is decoded, frames of different
+/// sizes and a stack that does not fit the memory budget even in its leanest plan, naming the
+/// `--memory` it needs. (The daemon's frames come from its own camera: it fuses and warns.)
+fn check_memory(a: &FuseArgs) -> Result<()> {
+    let headers: Vec<Header> = a
+        .frames
+        .iter()
+        .map(|p| io::probe(p))
+        .collect::<Result<_>>()?;
+    let (w, h) = (headers[0].width, headers[0].height);
+    for (d, p) in headers.iter().zip(&a.frames).skip(1) {
+        if (d.width, d.height) != (w, h) {
+            bail!(
+                "{}: frame is {}x{} but {} is {w}x{h}; all frames must have the same size",
+                p.display(),
+                d.width,
+                d.height,
+                a.frames[0].display()
+            );
+        }
+    }
+    let stack = memory::Stack {
+        frames: headers.len(),
+        width: w,
+        height: h,
+        channels: headers.iter().map(|d| d.channels).max().unwrap_or(3),
+        sample_bytes: headers.iter().map(|d| d.sample_bytes).max().unwrap_or(1),
+    };
+    let plan = memory::plan(&stack, &params(a, headers.len()));
+    if !plan.fits() {
+        bail!(
+            "{} frames of {w}x{h} need about {} MiB even in the smallest bands, over the {} MiB \
+             budget: give --memory {} or more, or fuse fewer or smaller frames",
+            stack.frames,
+            memory::mib(plan.floor),
+            memory::mib(plan.budget),
+            memory::mib(plan.floor).max(64)
+        );
+    }
+    Ok(())
+}
+
+/// The engine's parameters: the shared settings with this command's own flags.
+fn params(a: &FuseArgs, frames: usize) -> FuseParams {
+    let mut params = a.settings.params(frames);
+    if let Some(r) = a.reference {
+        params.reference = r;
+    }
+    if a.no_align {
+        params.align = None;
+    }
+    params
 }
 
 fn to_u16(d: Decoded) -> Image<u16> {
@@ -154,17 +197,12 @@ fn run_typed<T: Sample>(
     a: &FuseArgs,
     frames: Vec<Image<T>>,
     load_time: std::time::Duration,
+    mut outs: Outputs,
 ) -> Result<()> {
     let frames = match_channels(frames);
     let n = frames.len();
     let (w, h) = (frames[0].width, frames[0].height);
-    let mut params = a.settings.params(n);
-    if let Some(r) = a.reference {
-        params.reference = r;
-    }
-    if a.no_align {
-        params.align = None;
-    }
+    let params = params(a, n);
     let reference = params.reference;
     let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
     let bar = Bar::stderr();
@@ -192,7 +230,7 @@ fn run_typed<T: Sample>(
                 .map(|&l| (l as f32 * scale).round() as u8)
                 .collect(),
         );
-        io::save(&depth, d, a.settings.quality)?;
+        outs.write(d, &io::encode(&depth, image::ImageFormat::Png, 100)?)?;
     }
     if let (Some(path), Some(al)) = (&a.save_transforms, &fused.alignment) {
         let t = Transforms {
@@ -209,9 +247,10 @@ fn run_typed<T: Sample>(
                 .collect(),
         };
         let json = serde_json::to_vec_pretty(&t).context("encoding the transforms")?;
-        io::write_atomic(path, &json)?;
+        outs.write(path, &json)?;
     }
-    io::write_atomic(&a.output, &bytes)?;
+    outs.write(&a.output, &bytes)?;
+    outs.commit()?;
     let save_time = t.elapsed();
 
     eprintln!("focusd: fused {n} frames of {w}x{h} (reference {reference})");

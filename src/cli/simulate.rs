@@ -7,7 +7,8 @@
 
 use anyhow::{bail, Context, Result};
 use focusd::backend::replay::BundleWriter;
-use focusd::imageio::{encode, save, write_atomic};
+use focusd::imageio::{encode, save};
+use focusd::outputs::write_atomic;
 use focusd::sim::bundle::{self, Shake};
 use focusd::sim::{self, FrameInfo, SimParams};
 use focusd::stack::image::Image;

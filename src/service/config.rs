@@ -14,8 +14,10 @@ use std::path::{Path, PathBuf};
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
     /// The only directory the daemon writes images to. Relative paths are relative to the
-    /// working directory (systemd: the state directory).
-    pub dir: PathBuf,
+    /// working directory (systemd: the state directory). Unset: the session service writes to
+    /// `focusd` in the user's Pictures folder (`service::pictures`), the system service to
+    /// `focusd` in its working directory ([`SYSTEM_OUTPUT_DIR`]).
+    pub dir: Option<PathBuf>,
     /// `jpg`, `png` or `tif`.
     pub format: String,
     /// Also write the JSON report beside each image.
@@ -25,7 +27,7 @@ pub struct OutputConfig {
 impl Default for OutputConfig {
     fn default() -> Self {
         Self {
-            dir: PathBuf::from("focusd"),
+            dir: None,
             format: "jpg".into(),
             report: true,
         }
@@ -43,15 +45,24 @@ impl OutputConfig {
                 ),
             ));
         }
-        if self.dir.as_os_str().is_empty() {
+        if self.dir.as_ref().is_some_and(|d| d.as_os_str().is_empty()) {
             return Err(Invalid::new(
                 "dir",
-                "dir is empty: name the directory outputs go to",
+                "dir is empty: name the directory outputs go to, or leave it out",
             ));
         }
         Ok(())
     }
+
+    /// The output directory: `dir`, or the system service's default.
+    pub fn dir(&self) -> &Path {
+        self.dir.as_deref().unwrap_or(Path::new(SYSTEM_OUTPUT_DIR))
+    }
 }
+
+/// The system service's output directory when `[output] dir` is unset, relative to its working
+/// directory (the unit's state directory, `/var/lib/focusd`).
+pub const SYSTEM_OUTPUT_DIR: &str = "focusd";
 
 /// How the daemon watches its jobs (the `[service]` table).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -102,7 +113,7 @@ pub struct ConfigError(String);
 
 impl Config {
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::bounded_read::read_to_string(path, crate::bounded_read::TEXT_CAP)
             .map_err(|e| ConfigError(format!("{}: cannot read: {e}", path.display())))?;
         Config::parse(&text).map_err(|(line, why)| {
             ConfigError(match line {

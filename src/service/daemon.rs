@@ -14,8 +14,10 @@
 //! camera), so systemd restarts it clean.
 
 use super::config::Config;
+use super::feedback::{Desk, Moment, Moments};
 use super::job::{self, Rig, Source};
 use super::output;
+use super::pictures;
 use super::watchdog::{self, Heartbeat, Stall};
 use crate::backend::replay::faults::Fault;
 use crate::capture::sweep::Monitor;
@@ -24,7 +26,7 @@ use crate::stack::Progress;
 use anyhow::{Context, Result};
 use futures_util::StreamExt;
 use std::panic::AssertUnwindSafe;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -86,10 +88,14 @@ pub enum FocusdError {
     Output(String),
     /// The call's arguments are not the method's.
     InvalidArgs(String),
+    /// `Cancel` of a job another user started.
+    AccessDenied(String),
 }
 
 struct Running {
     id: String,
+    /// The uid of the caller that started the job: only it and root may cancel the job.
+    owner: u32,
     cancel: Arc<AtomicBool>,
     /// When Cancel or SIGTERM asked the job to stop.
     cancelled_at: Option<Instant>,
@@ -138,7 +144,6 @@ struct State {
     running: Option<Running>,
     stage: &'static str,
     last_result: String,
-    jobs: u64,
     /// Injected into the next job, once.
     faults: Vec<Fault>,
 }
@@ -195,7 +200,11 @@ pub struct Focusd {
 impl Focusd {
     /// Starts a capture (sweep, register, fuse) and returns its job id at once; the result
     /// comes as `Finished` or `Failed`.
-    fn capture(&self, #[zbus(header)] header: Header<'_>) -> Result<String, FocusdError> {
+    async fn capture(
+        &self,
+        #[zbus(header)] header: Header<'_>,
+        #[zbus(connection)] conn: &zbus::Connection,
+    ) -> Result<String, FocusdError> {
         // zbus passes a method without arguments whatever body came with the call.
         let got = header.signature().to_string();
         if !got.is_empty() {
@@ -203,6 +212,7 @@ impl Focusd {
                 "Capture takes no arguments, got signature {got:?}"
             )));
         }
+        let owner = caller_uid(&header, conn).await?;
         let mut s = self.shared.lock();
         if let Some(r) = &s.running {
             return Err(FocusdError::Busy(format!(
@@ -215,8 +225,7 @@ impl Focusd {
         };
         let (image, report) = output::next_paths(&s.config.output)
             .map_err(|e| FocusdError::Output(format!("{e:#}")))?;
-        s.jobs += 1;
-        let id = format!("{}", s.jobs);
+        let id = new_job_id().map_err(|e| FocusdError::Busy(format!("no job id: {e}")))?;
         let cancel = Arc::new(AtomicBool::new(false));
         let report = s.config.output.report.then_some(report);
         let request = Request {
@@ -230,6 +239,7 @@ impl Focusd {
         self.shared.beat.beat();
         s.running = Some(Running {
             id: id.clone(),
+            owner,
             cancel,
             cancelled_at: None,
             at: (Stage::WaitingStill, 0, 0),
@@ -244,12 +254,25 @@ impl Focusd {
         Ok(id)
     }
 
-    /// Stops a running job; it ends with `Failed(job, "cancelled")`.
-    fn cancel(&self, job: &str) -> Result<(), FocusdError> {
+    /// Stops a running job; it ends with `Failed(job, "cancelled")`. Only the user that started
+    /// it, and root, may.
+    async fn cancel(
+        &self,
+        job: &str,
+        #[zbus(header)] header: Header<'_>,
+        #[zbus(connection)] conn: &zbus::Connection,
+    ) -> Result<(), FocusdError> {
+        let caller = caller_uid(&header, conn).await?;
         let mut s = self.shared.lock();
         // Echoed in the error: a caller's megabyte of text is not.
         let shown: String = job.chars().take(64).collect();
         match &mut s.running {
+            Some(r) if r.id == job && caller != r.owner && caller != 0 => {
+                Err(FocusdError::AccessDenied(format!(
+                    "job {shown} was started by uid {}; only that user or root may cancel it",
+                    r.owner
+                )))
+            }
             Some(r) if r.id == job => {
                 r.cancel();
                 tracing::info!(job, "cancel requested");
@@ -297,6 +320,38 @@ impl Focusd {
 
     #[zbus(signal)]
     async fn failed(emitter: &SignalEmitter<'_>, job: &str, error: &str) -> zbus::Result<()>;
+}
+
+/// The uid of a method call's sender, from the bus.
+async fn caller_uid(header: &Header<'_>, conn: &zbus::Connection) -> Result<u32, FocusdError> {
+    let sender = header
+        .sender()
+        .ok_or_else(|| FocusdError::AccessDenied("the call names no sender".into()))?;
+    let dbus = zbus::fdo::DBusProxy::new(conn).await?;
+    let uid = dbus
+        .get_connection_unix_user(sender.clone().into())
+        .await
+        .map_err(|e| FocusdError::AccessDenied(format!("cannot tell who {sender} is: {e}")))?;
+    Ok(uid)
+}
+
+/// A job id no other caller can guess (128 random bits, in hex): a job is named to cancel it.
+fn new_job_id() -> std::io::Result<String> {
+    let mut bytes = [0u8; 16];
+    let mut got = 0;
+    while got < bytes.len() {
+        // SAFETY: the pointer and length describe the unfilled rest of `bytes`.
+        let n = unsafe { libc::getrandom(bytes[got..].as_mut_ptr().cast(), bytes.len() - got, 0) };
+        if n < 0 {
+            let e = std::io::Error::last_os_error();
+            if e.kind() != std::io::ErrorKind::Interrupted {
+                return Err(e);
+            }
+        } else {
+            got += n as usize;
+        }
+    }
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// Relays a job's progress to the event task, and its cancel flag to the sweep and the engine.
@@ -466,7 +521,7 @@ fn worker(
                     let error = if job::is_cancel(&e) {
                         "cancelled".to_string()
                     } else {
-                        format!("{e:#}")
+                        crate::clip::clip(&format!("{e:#}"))
                     };
                     tracing::warn!(job = %r.id, %error, "failed");
                     Event::Failed { job: r.id, error }
@@ -479,7 +534,9 @@ fn worker(
 }
 
 /// Turns worker events into signals and property changes.
-async fn relay(iface: InterfaceRef<Focusd>, mut events: UnboundedReceiver<Event>) {
+/// Also tells the person holding the phone (`feedback`): hold still, done, failed.
+async fn relay(iface: InterfaceRef<Focusd>, mut events: UnboundedReceiver<Event>, desk: Desk) {
+    let mut moments = Moments::default();
     while let Some(e) = events.recv().await {
         let emitter = iface.signal_emitter();
         let sent = match e {
@@ -494,13 +551,26 @@ async fn relay(iface: InterfaceRef<Focusd>, mut events: UnboundedReceiver<Event>
                 stage,
                 done,
                 total,
-            } => Focusd::progress(emitter, &job, stage.name(), done, total).await,
+            } => {
+                if let Some(m) = moments.progress(&job, stage, done, total) {
+                    desk.feedback(m);
+                }
+                Focusd::progress(emitter, &job, stage.name(), done, total).await
+            }
             Event::Finished { job, path } => {
+                desk.notify(Ok(&path));
                 let r = Focusd::finished(emitter, &job, &path).await;
                 let _ = iface.get().await.last_result_changed(emitter).await;
                 r
             }
-            Event::Failed { job, error } => Focusd::failed(emitter, &job, &error).await,
+            Event::Failed { job, error } => {
+                // A cancel is the user's own doing: nothing to tell them.
+                if error != "cancelled" {
+                    desk.feedback(Moment::Failed);
+                    desk.notify(Err(&error));
+                }
+                Focusd::failed(emitter, &job, &error).await
+            }
         };
         if let Err(e) = sent {
             tracing::warn!("cannot emit a signal: {e}");
@@ -512,19 +582,34 @@ fn notify_status(state: &str) {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(state)]);
 }
 
-/// The config (built-in defaults without a file), with its output directory ready.
-fn load(path: &Option<PathBuf>) -> Result<Config> {
-    let config = match path {
+/// The config (built-in defaults without a file), with its output directory chosen and ready.
+fn load(path: &Option<PathBuf>, bus: &Bus) -> Result<Config> {
+    let mut config = match path {
         Some(p) => Config::load(p)?,
         None => Config::default(),
     };
+    if config.output.dir.is_none() && *bus != Bus::System {
+        // A user's service: where the gallery looks.
+        match std::env::var_os("HOME").filter(|h| !h.is_empty()) {
+            Some(home) => {
+                let config_home = std::env::var_os("XDG_CONFIG_HOME").filter(|c| !c.is_empty());
+                let pictures =
+                    pictures::pictures_dir(Path::new(&home), config_home.as_deref().map(Path::new));
+                config.output.dir = Some(pictures.join("focusd"));
+            }
+            None => tracing::warn!(
+                "HOME is not set: writing to {} in the working directory",
+                config.output.dir().display()
+            ),
+        }
+    }
     output::prepare(&config.output)?;
     Ok(config)
 }
 
 /// Serves until SIGTERM or SIGINT, which cancel a running job and wait for it to end.
 pub fn serve(opts: ServeOptions) -> Result<()> {
-    let config = load(&opts.config)?;
+    let config = load(&opts.config, &opts.bus)?;
     let source = match &opts.replay {
         Some(dir) => Source::Replay {
             dir: dir.clone(),
@@ -554,7 +639,6 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
             running: None,
             stage: "idle",
             last_result: String::new(),
-            jobs: 0,
             faults: opts.faults.clone(),
         }),
         source,
@@ -582,7 +666,8 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
             .spawn(move || worker(shared, inbox, events))
             .context("starting the job thread")?
     };
-    let relay = tokio::spawn(relay(iface.clone(), outbox));
+    let desk = Desk::new((opts.bus != Bus::System).then(|| conn.clone()));
+    let relay = tokio::spawn(relay(iface.clone(), outbox, desk));
     let _ = sd_notify::notify(&[
         sd_notify::NotifyState::Ready,
         sd_notify::NotifyState::Status("idle"),
@@ -617,7 +702,7 @@ async fn run(opts: ServeOptions, config: Config, source: Source) -> Result<()> {
                 fatal = Some(e);
                 stopping = stop(&shared);
             }
-            _ = hup.recv() => reload(&opts.config, &shared),
+            _ = hup.recv() => reload(&opts.config, &opts.bus, &shared),
             _ = tick.tick() => {
                 if let Some((job, error)) = give_up_if_stalled(&shared) {
                     let _ = Focusd::failed(iface.signal_emitter(), &job, &error).await;
@@ -705,7 +790,7 @@ fn give_up_if_stalled(shared: &Shared) -> Option<(String, String)> {
         r.id
     ))]);
     for path in &r.outputs {
-        if let Ok(tmp) = crate::imageio::temp_path(path) {
+        if let Ok(tmp) = crate::outputs::temp_path(path) {
             let _ = std::fs::remove_file(tmp);
         }
     }
@@ -713,16 +798,19 @@ fn give_up_if_stalled(shared: &Shared) -> Option<(String, String)> {
 }
 
 /// SIGHUP: the new config replaces the old only if it is good.
-fn reload(path: &Option<PathBuf>, shared: &Shared) {
+fn reload(path: &Option<PathBuf>, bus: &Bus, shared: &Shared) {
     let Some(p) = path else {
         tracing::info!("SIGHUP: no config file to reload (running on the built-in defaults)");
         return;
     };
-    match load(path) {
+    match load(path, bus) {
         Ok(c) => {
             shared.lock().config = c;
             tracing::info!("SIGHUP: reloaded {}", p.display());
         }
-        Err(e) => tracing::error!("SIGHUP: {e:#}; keeping the old config"),
+        Err(e) => tracing::error!(
+            "SIGHUP: {}; keeping the old config",
+            crate::clip::clip(&format!("{e:#}"))
+        ),
     }
 }

@@ -11,6 +11,7 @@ use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
 use crate::capture::{Camera, CaptureError, Clock, Imu, Take};
+use crate::outputs::Outputs;
 use crate::stack::fuse::{fuse, FuseError};
 use crate::stack::memory::{mib, Plan};
 use crate::stack::Progress;
@@ -156,6 +157,13 @@ pub fn run(
     progress: &dyn Progress,
 ) -> Result<Report> {
     let format = crate::imageio::format_for(output)?;
+    let mut outs = Outputs::check(
+        &[Some(output), report]
+            .into_iter()
+            .flatten()
+            .collect::<Vec<_>>(),
+        &[],
+    )?;
     let t0 = Instant::now();
     let Sweep {
         frames,
@@ -181,7 +189,7 @@ pub fn run(
     }
     let t = Instant::now();
     let bytes = crate::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
-    crate::imageio::write_atomic(output, &bytes)?;
+    outs.write(output, &bytes)?;
     let mut timings = BTreeMap::from([("capture", capture_ms)]);
     for (stage, d) in &fused.timings {
         let key = if stage.registers() {
@@ -202,7 +210,8 @@ pub fn run(
     if let Some(path) = report {
         let mut json = serde_json::to_vec_pretty(&r).context("encoding the report")?;
         json.push(b'\n');
-        crate::imageio::write_atomic(path, &json)?;
+        outs.write(path, &json)?;
     }
+    outs.commit()?;
     Ok(r)
 }

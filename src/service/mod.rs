@@ -2,8 +2,10 @@
 //! run, the output directory, the D-Bus daemon and its watchdog.
 pub mod config;
 pub mod daemon;
+pub mod feedback;
 pub mod fuse_settings;
 pub mod job;
 pub mod output;
+pub mod pictures;
 pub mod proxy;
 pub mod watchdog;

@@ -8,10 +8,10 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Creates the output directory if needed.
 pub fn prepare(out: &OutputConfig) -> Result<()> {
-    std::fs::create_dir_all(&out.dir).with_context(|| {
+    std::fs::create_dir_all(out.dir()).with_context(|| {
         format!(
             "[output] dir {}: cannot create it (set [output] dir to a writable directory)",
-            out.dir.display()
+            out.dir().display()
         )
     })
 }
@@ -30,8 +30,8 @@ pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf)> {
         } else {
             format!("{stem}-{n}")
         };
-        let image = out.dir.join(format!("{name}.{}", out.format));
-        let report = out.dir.join(format!("{name}.json"));
+        let image = out.dir().join(format!("{name}.{}", out.format));
+        let report = out.dir().join(format!("{name}.json"));
         if !image.exists() && !report.exists() {
             return Ok((image, report));
         }
@@ -75,12 +75,12 @@ mod tests {
     fn names_never_collide_and_stay_in_the_directory() {
         let dir = tempfile::tempdir().unwrap();
         let out = OutputConfig {
-            dir: dir.path().join("new/sub"),
+            dir: Some(dir.path().join("new/sub")),
             ..OutputConfig::default()
         };
         let (a, r) = next_paths(&out).unwrap();
-        assert!(out.dir.is_dir());
-        assert_eq!(a.parent(), Some(out.dir.as_path()));
+        assert!(out.dir().is_dir());
+        assert_eq!(a.parent(), Some(out.dir()));
         assert_eq!(r.extension().unwrap(), "json");
         std::fs::write(&a, b"x").unwrap();
         let (b, _) = next_paths(&out).unwrap();
@@ -92,7 +92,7 @@ mod tests {
                     .contains(a.file_stem().unwrap().to_str().unwrap())
         );
         let blocked = OutputConfig {
-            dir: dir.path().join("new/sub").join(a.file_name().unwrap()),
+            dir: Some(dir.path().join("new/sub").join(a.file_name().unwrap())),
             ..OutputConfig::default()
         };
         let e = format!("{:#}", next_paths(&blocked).unwrap_err());

@@ -40,11 +40,40 @@ pub struct Bus {
     pub address: String,
 }
 
+/// A private bus that other users may connect to too (a session bus takes only its own user).
+const OPEN_BUS: &str = r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-BUS Bus Configuration 1.0//EN"
+ "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
+<busconfig>
+  <type>session</type>
+  <listen>unix:tmpdir=/tmp</listen>
+  <auth>EXTERNAL</auth>
+  <policy context="default">
+    <allow user="*"/>
+    <allow own="*"/>
+    <allow send_destination="*" eavesdrop="true"/>
+    <allow eavesdrop="true"/>
+    <allow receive_sender="*"/>
+  </policy>
+</busconfig>
+"#;
+
 impl Bus {
     pub fn start() -> Bus {
+        Bus::spawn(&["--session", "--address=unix:tmpdir=/tmp"])
+    }
+
+    /// A bus every user may connect to.
+    pub fn start_open() -> (Bus, tempfile::NamedTempFile) {
+        let mut config = tempfile::NamedTempFile::new().unwrap();
+        std::io::Write::write_all(&mut config, OPEN_BUS.as_bytes()).unwrap();
+        let arg = format!("--config-file={}", config.path().display());
+        (Bus::spawn(&[&arg]), config)
+    }
+
+    fn spawn(args: &[&str]) -> Bus {
         let mut child = Command::new("dbus-daemon")
-            .args(["--session", "--nofork", "--print-address=1"])
-            .arg("--address=unix:tmpdir=/tmp")
+            .args(["--nofork", "--print-address=1"])
+            .args(args)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn()
@@ -81,13 +110,15 @@ impl Daemon {
 
     /// With more `focusd serve` arguments (`--fault ...`).
     pub fn start_with(bus: &Bus, bundle: &Path, paced: bool, extra: &[&str]) -> Daemon {
-        Daemon::start_full(bus, bundle, paced, extra, "", &[])
+        Daemon::start_full(bus, Some(bundle), paced, extra, "", &[])
     }
 
-    /// With more arguments, more config tables after `[output]`, and environment variables.
+    /// With more arguments, more config tables after `[output]` (tables with an `[output]` of
+    /// their own replace it), and environment variables; without a bundle it serves the devices
+    /// the config names.
     pub fn start_full(
         bus: &Bus,
-        bundle: &Path,
+        bundle: Option<&Path>,
         paced: bool,
         extra: &[&str],
         config_tables: &str,
@@ -95,21 +126,19 @@ impl Daemon {
     ) -> Daemon {
         let dir = tempfile::tempdir().unwrap();
         let config = dir.path().join("focusd.toml");
-        std::fs::write(
-            &config,
-            format!(
-                "[output]\ndir = {:?}\n{config_tables}",
-                dir.path().join("out")
-            ),
-        )
-        .unwrap();
+        let output = if config_tables.contains("[output]") {
+            String::new()
+        } else {
+            format!("[output]\ndir = {:?}\n", dir.path().join("out"))
+        };
+        std::fs::write(&config, format!("{output}{config_tables}")).unwrap();
         let log = std::fs::File::create(dir.path().join("serve.log")).unwrap();
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_focusd"));
-        cmd.args(["serve", "--address", &bus.address, "--replay"])
-            .arg(bundle)
-            .arg("--config")
-            .arg(&config)
-            .stderr(log);
+        cmd.args(["serve", "--address", &bus.address]);
+        if let Some(bundle) = bundle {
+            cmd.arg("--replay").arg(bundle);
+        }
+        cmd.arg("--config").arg(&config).stderr(log);
         if paced {
             cmd.arg("--paced");
         }

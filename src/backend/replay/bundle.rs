@@ -4,7 +4,7 @@
 //! come from another machine.
 
 use crate::capture::{ImuSample, Nanos, Sensor};
-use crate::imageio::write_atomic;
+use crate::outputs::write_atomic;
 use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -45,6 +45,8 @@ pub struct TakeEntry {
 #[derive(Clone, Debug)]
 pub struct Bundle {
     pub dir: PathBuf,
+    /// `dir` with every link resolved: the files read must lie under it.
+    root: PathBuf,
     pub manifest: Manifest,
     /// Sorted by time.
     pub imu: Vec<ImuSample>,
@@ -67,17 +69,29 @@ fn err(path: &Path, reason: impl Into<String>) -> BundleError {
 
 impl Bundle {
     pub fn open(dir: &Path) -> Result<Bundle, BundleError> {
+        let root = dir
+            .canonicalize()
+            .map_err(|e| err(dir, format!("cannot open the bundle: {e}")))?;
         let toml_path = dir.join("bundle.toml");
-        let text = std::fs::read_to_string(&toml_path)
-            .map_err(|e| err(&toml_path, format!("cannot read: {e}")))?;
+        let text = crate::bounded_read::read_to_string(
+            &inside(&root, &toml_path)?,
+            crate::bounded_read::TEXT_CAP,
+        )
+        .map_err(|e| err(&toml_path, format!("cannot read: {e}")))?;
         let manifest = parse_manifest(&text).map_err(|r| err(&toml_path, r))?;
         let csv_path = dir.join("imu.csv");
-        let imu = read_imu(&csv_path)?;
+        let imu = read_imu(&inside(&root, &csv_path)?)?;
         Ok(Bundle {
             dir: dir.to_path_buf(),
+            root,
             manifest,
             imu,
         })
+    }
+
+    /// The path of a file the manifest names, once it is known to resolve inside the bundle.
+    pub fn file(&self, name: &str) -> Result<PathBuf, BundleError> {
+        inside(&self.root, &self.dir.join(name))
     }
 
     /// Planes recorded: one more than the largest plane index.
@@ -168,17 +182,31 @@ fn is_plain_relative(p: &str) -> bool {
             .all(|c| matches!(c, Component::Normal(_)))
 }
 
-fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
-    let len = std::fs::metadata(path)
-        .map_err(|e| err(path, format!("cannot read: {e}")))?
-        .len();
-    if len > MAX_CSV_BYTES {
+/// `path` with its links resolved, if that lies under `root`. The manifest's names are plain
+/// relative paths already (`is_plain_relative`), but a file or directory in the bundle may be a link
+/// out of it: a bundle handed to the daemon must not make it read (and echo in errors) a file
+/// the caller could not name directly.
+fn inside(root: &Path, path: &Path) -> Result<PathBuf, BundleError> {
+    let real = path
+        .canonicalize()
+        .map_err(|e| err(path, format!("cannot read: {e}")))?;
+    if !real.starts_with(root) {
         return Err(err(
             path,
-            format!("{len} bytes, more than the {MAX_CSV_BYTES} a bundle may hold"),
+            format!(
+                "resolves to {}, outside the bundle directory {}; a bundle's files must lie \
+                 inside it (copy the file in instead of linking to it)",
+                real.display(),
+                root.display()
+            ),
         ));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| err(path, format!("cannot read: {e}")))?;
+    Ok(real)
+}
+
+fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
+    let text = crate::bounded_read::read_to_string(path, MAX_CSV_BYTES)
+        .map_err(|e| err(path, format!("cannot read: {e}")))?;
     parse_imu(&text).map_err(|r| err(path, r))
 }
 

@@ -122,12 +122,16 @@ impl Camera for ReplayCamera {
             )));
         };
         self.next[plane] += 1;
-        let path = self.bundle.dir.join(&entry.image);
-        // The error names the file already.
-        let image = crate::imageio::load_rgb8(&path).map_err(|e| CaptureError::Bundle {
+        let bundle_error = |e: String| CaptureError::Bundle {
             path: self.bundle.dir.join("bundle.toml").display().to_string(),
-            reason: format!("take {k} of plane {plane}: {e:#}"),
-        })?;
+            reason: format!("take {k} of plane {plane}: {e}"),
+        };
+        // The errors name the file already.
+        let path = self
+            .bundle
+            .file(&entry.image)
+            .map_err(|e| bundle_error(e.to_string()))?;
+        let image = crate::imageio::load_rgb8(&path).map_err(|e| bundle_error(format!("{e:#}")))?;
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
             image,

@@ -1,0 +1,205 @@
+//! Telling the person holding the phone what a capture needs of them, through the session's own
+//! services: feedbackd (`org.sigxcpu.Feedback`: haptics and sound) says "hold still" when the
+//! sweep starts and "you may move" when its last plane is taken; a desktop notification
+//! (`org.freedesktop.Notifications`) shows the picture, or why there is none.
+//!
+//! Both are optional: a phone without feedbackd or a notification daemon still captures, and a
+//! call that fails is logged once, not retried. Both live on the session bus: the system service
+//! has none to call. The calls go out from the event task, each in its own task, so a slow or
+//! absent service never delays a signal.
+
+use crate::capture::Stage;
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use zbus::Variant;
+
+/// The app id feedbackd keys per-application settings on, and the notification's desktop entry:
+/// the launcher is `org.focusd.Focusd.desktop`.
+pub const APP_ID: &str = "org.focusd.Focusd";
+
+/// Feedback events, named by feedbackd's Event naming spec; the stock theme gives each a sound.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Moment {
+    /// The sweep starts: hold still ("camera-focus").
+    HoldStill,
+    /// The last plane is taken: the phone may move ("camera-shutter").
+    Taken,
+    /// The capture failed. The spec has no camera failure for applications; "phone-failure"
+    /// (a call ended by a failure) is the failure sound every stock theme has.
+    Failed,
+}
+
+impl Moment {
+    pub fn event(self) -> &'static str {
+        match self {
+            Moment::HoldStill => "camera-focus",
+            Moment::Taken => "camera-shutter",
+            Moment::Failed => "phone-failure",
+        }
+    }
+}
+
+/// Follows a job's progress reports and says when a moment has come, once each.
+#[derive(Default)]
+pub struct Moments {
+    job: String,
+    sweeping: bool,
+    taken: bool,
+}
+
+impl Moments {
+    /// The moment a progress report of `job` marks, if any.
+    pub fn progress(&mut self, job: &str, stage: Stage, done: u32, total: u32) -> Option<Moment> {
+        if self.job != job {
+            *self = Moments {
+                job: job.to_string(),
+                ..Moments::default()
+            };
+        }
+        if stage != Stage::Sweeping {
+            return None;
+        }
+        if !self.sweeping {
+            self.sweeping = true;
+            return Some(Moment::HoldStill);
+        }
+        if total > 0 && done >= total && !self.taken {
+            self.taken = true;
+            return Some(Moment::Taken);
+        }
+        None
+    }
+}
+
+/// The session services a job's moments and results go to.
+#[derive(Clone)]
+pub struct Desk {
+    conn: Option<zbus::Connection>,
+    /// Logged once each: an absent service is normal.
+    feedback_missing: Arc<AtomicBool>,
+    notifications_missing: Arc<AtomicBool>,
+}
+
+impl Desk {
+    /// On the session bus (or a private one in tests); `None` on the system bus.
+    pub fn new(session: Option<zbus::Connection>) -> Desk {
+        if session.is_none() {
+            tracing::info!(
+                "on the system bus: no haptic feedback or notifications to give (feedbackd and \
+                 the notification daemon are session services)"
+            );
+        }
+        Desk {
+            conn: session,
+            feedback_missing: Arc::default(),
+            notifications_missing: Arc::default(),
+        }
+    }
+
+    /// Triggers feedbackd's feedback for `moment`.
+    pub fn feedback(&self, moment: Moment) {
+        let Some(conn) = self.conn.clone() else {
+            return;
+        };
+        let missing = self.feedback_missing.clone();
+        tokio::spawn(async move {
+            let hints: HashMap<&str, Variant> = HashMap::new();
+            let r = conn
+                .call_method(
+                    Some("org.sigxcpu.Feedback"),
+                    "/org/sigxcpu/Feedback",
+                    Some("org.sigxcpu.Feedback"),
+                    "TriggerFeedback",
+                    // timeout -1: each feedback runs once.
+                    &(APP_ID, moment.event(), hints, -1i32),
+                )
+                .await;
+            if let Err(e) = r {
+                if !missing.swap(true, Ordering::Relaxed) {
+                    tracing::info!("no haptic feedback (feedbackd: {e})");
+                }
+            }
+        });
+    }
+
+    /// A desktop notification: the finished picture (`Ok(path)`) or why it failed.
+    pub fn notify(&self, result: Result<&str, &str>) {
+        let Some(conn) = self.conn.clone() else {
+            return;
+        };
+        let (summary, body, image) = match result {
+            Ok(path) => (
+                "Focus stack saved",
+                path.to_string(),
+                Some(path.to_string()),
+            ),
+            Err(e) => ("Focus stack failed", e.to_string(), None),
+        };
+        let missing = self.notifications_missing.clone();
+        tokio::spawn(async move {
+            let mut hints: HashMap<&str, Variant> = HashMap::new();
+            hints.insert("desktop-entry", Variant::from(APP_ID));
+            if let Some(path) = &image {
+                hints.insert("image-path", Variant::from(format!("file://{path}")));
+            }
+            let actions: Vec<&str> = Vec::new();
+            let r = conn
+                .call_method(
+                    Some("org.freedesktop.Notifications"),
+                    "/org/freedesktop/Notifications",
+                    Some("org.freedesktop.Notifications"),
+                    "Notify",
+                    // app name, replaces id, icon, summary, body, actions, hints, expire (-1:
+                    // the server's default).
+                    &(
+                        "focusd",
+                        0u32,
+                        APP_ID,
+                        summary,
+                        body.as_str(),
+                        actions,
+                        hints,
+                        -1i32,
+                    ),
+                )
+                .await;
+            if let Err(e) = r {
+                if !missing.swap(true, Ordering::Relaxed) {
+                    tracing::info!("no desktop notifications ({e})");
+                }
+            }
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_moment_comes_once_per_job() {
+        let mut m = Moments::default();
+        let seen: Vec<_> = [
+            ("a", Stage::WaitingStill, 0, 0),
+            ("a", Stage::Sweeping, 0, 3),
+            ("a", Stage::Sweeping, 1, 3),
+            ("a", Stage::Sweeping, 3, 3),
+            ("a", Stage::Sweeping, 3, 3),
+            ("b", Stage::Sweeping, 0, 2),
+            ("b", Stage::Sweeping, 2, 2),
+        ]
+        .into_iter()
+        .filter_map(|(j, s, d, t)| m.progress(j, s, d, t).map(|x| (j, x)))
+        .collect();
+        assert_eq!(
+            seen,
+            [
+                ("a", Moment::HoldStill),
+                ("a", Moment::Taken),
+                ("b", Moment::HoldStill),
+                ("b", Moment::Taken)
+            ]
+        );
+    }
+}
