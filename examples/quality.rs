@@ -3,7 +3,8 @@
 //! `quality sim DIR IMAGE...`: DIR is a `focusd simulate` stack (frames, truth.png, depth.png,
 //! steps.png, transforms.json, stack.json; motion_NN.png when it was written with `--motion`).
 //! Prints the aligned depth oracle once (each pixel from the frame focused at its true depth,
-//! sampled where that frame truly shows it: by `motion_NN.png`, else by the affine alone), then
+//! sampled where that frame truly shows it: by `motion_NN.png`, else by the affine alone; its
+//! gain from stack.json undone in the light the simulator applied it in), then
 //! per image: PSNR overall, in the band within 3σ of a depth step (σ the largest defocus blur,
 //! `max_sigma` in stack.json) and elsewhere, Tenengrad, and the ghost share
 //! (`focusd::stack::ghosts`).
@@ -13,6 +14,7 @@
 
 use anyhow::{bail, Context, Result};
 use focusd::imageio::{load, load_rgb8, Decoded};
+use focusd::sim::render::Mixing;
 use focusd::stack::ghosts;
 use focusd::stack::image::Image;
 use focusd::stack::metrics::{depth_oracle, psnr, psnr_where, step_band, tenengrad};
@@ -68,14 +70,31 @@ fn sim(dir: &Path, images: &[PathBuf]) -> Result<()> {
             _ => None,
         })
         .collect();
-    let oracle = depth_oracle(&frames, &labels, |k, x, y| {
+    // Each frame's gain (exposure × white balance), applied by the simulator in its mixing light.
+    let gains: Vec<[f32; 3]> = (0..n)
+        .map(|i| {
+            let f = &meta["frames"][i];
+            let g = f["gain"].as_f64().unwrap_or(1.0);
+            std::array::from_fn(|c| (g * f["white_balance"][c].as_f64().unwrap_or(1.0)) as f32)
+        })
+        .collect();
+    let light = if meta["params"]["linear_light"].as_bool().unwrap_or(false) {
+        Mixing::Linear
+    } else {
+        Mixing::Display
+    };
+    let at = |k: usize, x: usize, y: usize| {
         let (mut u, mut v) = t.frames[k].ref_to_frame.apply(x as f64, y as f64);
         if let Some(m) = &motion[k] {
             u += (m.at(x, y, 0) as f64 - 32768.0) / 1024.0;
             v += (m.at(x, y, 1) as f64 - 32768.0) / 1024.0;
         }
         (u as f32, v as f32)
-    });
+    };
+    let undo = |k: usize, c: usize, v: f32| {
+        255.0 * light.to_display(light.from_display(v / 255.0) / gains[k][c.min(2)])
+    };
+    let oracle = depth_oracle(&frames, &labels, at, undo);
     let line = |name: &str, img: &Image<u8>, with_ghosts: bool| {
         let inb = psnr_where(img, &truth, |x, y| band[y * w + x]);
         let out = psnr_where(img, &truth, |x, y| !band[y * w + x]);

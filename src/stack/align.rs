@@ -206,7 +206,7 @@ fn fit_exposure(points: &[(f64, f64, f64)]) -> Option<Exposure> {
 /// Keys' cubic convolution weights (a = −½) of the four taps around a point `t` past the second.
 /// Bilinear resampling would soften every frame once more (measured: the oracle stack of
 /// sim-data/handheld loses 0.7 dB with it).
-fn keys(t: f32) -> [f32; 4] {
+pub(super) fn keys(t: f32) -> [f32; 4] {
     let (t2, t3) = (t * t, t * t * t);
     [
         -0.5 * t3 + t2 - 0.5 * t,

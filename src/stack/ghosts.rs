@@ -34,8 +34,16 @@ use rayon::prelude::*;
 pub const WIDTH: usize = 1000;
 /// Tile side, px.
 pub const TILE: usize = 32;
-/// Search radius around a tile's aligned place, px.
-pub const SEARCH: usize = 5;
+/// Search radius around a tile's aligned place, px. It has to absorb only what is no ghost: the
+/// check's own alignment error (under a pixel at the corners for a frame whose sharp content is
+/// the background; tests/ghosts.rs) and half-pixel offsets, so ±2 px. A wider window hides
+/// parallax itself: it was ±5 px, and 6 px of parallax at 1600 px is 3.75 px here, so a near
+/// object put 3–4 px away from where every frame shows it against its background (misregistered
+/// by the parallax) still passed as "moved a little". At ±2 px, a tile whose content sits more
+/// than ~3 px (at 1600 px) from where every frame shows it is a ghost. (A frame focused on near
+/// layers that move against the background is aligned partly to them, off by up to their
+/// parallax: the tiles of those layers then still find it, the background's find other frames.)
+pub const SEARCH: usize = 2;
 /// Below this best correlation a tile is a ghost.
 pub const THRESHOLD: f32 = 0.8;
 /// Luma standard deviation (0..=1) a tile needs to count as textured at all.
