@@ -2,6 +2,7 @@
 //! not part of this library.
 pub mod backend;
 pub mod capture;
+pub mod develop;
 pub mod imageio;
 pub mod malloc;
 pub mod service;
