@@ -6,6 +6,7 @@
 //! (the first needs vimc as loaded, unconfigured):
 //! - an unconfigured pipeline fails to stream with EPIPE, and the error says why;
 //! - profiles that do not match the graph fail naming the link or the pad;
+//! - with no profile configured, vimc's is chosen by its media model and streams;
 //! - the shipped `vimc` profile streams RGB through debayer and scaler, a variant of it the raw
 //!   Bayer path, another a scaled frame;
 //! - the lens is found through the graph (Lens A, ancillary link to Sensor A), swept across a
@@ -39,6 +40,7 @@ fn run() -> Check {
     fs::create_dir_all(TMP).map_err(|e| format!("{TMP}: {e}"))?;
     unconfigured()?;
     mismatches()?;
+    detected()?;
     let rgb = streams("RGB through debayer and scaler", shipped()?, (640, 480))?;
     let mut raw = shipped()?;
     raw.capture = "Raw Capture 0".into();
@@ -104,6 +106,8 @@ fn luma_spread(img: &Image<u8>) -> f64 {
 fn unconfigured() -> Check {
     let c = V4l2Config {
         device: Some(node("Raw Capture 0")?),
+        // Unset, the vimc profile would be chosen by the media model and set the graph up.
+        profile: Some("none".into()),
         lens: Some("Lens A".into()),
         format: Some("RGGB".into()),
         width: 640,
@@ -174,12 +178,46 @@ fn mismatches() -> Check {
         "pad \"Scaler\":1: asked for SRGGB8_1X8/640x480, the driver set RGB888_1X24/640x480",
     )?;
     let mut p = shipped()?;
+    p.sensor = "imx258".into();
+    expect_error(
+        &p,
+        "other-sensor",
+        "(\"VIMC MDEV\", but sensor \"imx258\": no entity is named \"imx258\"",
+    )?;
+    let mut p = shipped()?;
     p.media_model = "rkisp1".into();
     expect_error(
         &p,
         "other-device",
         "no media device has the model \"rkisp1\"",
     )
+}
+
+/// With no profile in the config, vimc's is chosen by its media model and streams.
+fn detected() -> Check {
+    let choice = v4l2::detect::detect(Path::new("/sys"))
+        .map_err(|e| format!("detect: {e}"))?
+        .ok_or("no profile chosen for vimc")?;
+    ensure!(
+        choice.profile.name == "vimc" && choice.reason == "the media device model \"VIMC MDEV\"",
+        "chose {} by {}",
+        choice.profile.name,
+        choice.reason
+    );
+    let mut cam = v4l2::open(&cfg(None)).map_err(|e| format!("open, profile chosen: {e}"))?;
+    let take = capture(&mut cam)?;
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ensure!(
+        (take.image.width, take.image.height) == (640, 480),
+        "the chosen profile captured {}x{}",
+        take.image.width,
+        take.image.height
+    );
+    ok(format!(
+        "no profile configured: {} chosen by {}, streams 640x480",
+        choice.profile.name, choice.reason
+    ));
+    Ok(())
 }
 
 /// Streams three frames with `profile`; returns its file path.
