@@ -37,6 +37,14 @@ pub fn apply(profile: &Profile, sysfs_root: &Path) -> Result<Pipeline, CaptureEr
     for link in &profile.links {
         let (source, sink, flags) = data_link(&topo, link).map_err(fail)?;
         if flags & abi::MEDIA_LNK_FL_IMMUTABLE == 0 {
+            for (other, other_sink) in rivals(&topo, source, sink) {
+                media::setup_link(&dev, other, other_sink, false).map_err(|e| {
+                    fail(format!(
+                        "link {link}: cannot disable the link from {} into the same pad: {e}",
+                        describe_pad(&topo, other)
+                    ))
+                })?;
+            }
             media::setup_link(&dev, source, sink, true)
                 .map_err(|e| fail(format!("link {link}: cannot enable it: {e}")))?;
         }
@@ -216,6 +224,37 @@ fn data_link(topo: &Topology, link: &LinkSpec) -> Result<((u32, u16), (u32, u16)
     Ok((ends(&link.source)?, ends(&link.sink)?, l.flags))
 }
 
+/// The enabled, changeable data links into the pad `sink` from another source than `source`,
+/// as (source, sink) ends: a sink pad takes one source at a time (a receiver shared by two
+/// sensors, vimc's debayer fed by sensor A or B), and the kernel refuses a second enabled link
+/// rather than switch, so they are disabled before the profile's link is enabled.
+fn rivals(topo: &Topology, source: (u32, u16), sink: (u32, u16)) -> Vec<((u32, u16), (u32, u16))> {
+    let ends = |pad: u32| {
+        topo.pads
+            .iter()
+            .find(|p| p.id == pad)
+            .and_then(|p| Some((p.entity, u16::try_from(p.index).ok()?)))
+    };
+    topo.links
+        .iter()
+        .filter(|l| l.flags & abi::MEDIA_LNK_FL_LINK_TYPE == abi::MEDIA_LNK_FL_DATA_LINK)
+        .filter(|l| l.flags & abi::MEDIA_LNK_FL_ENABLED != 0)
+        .filter(|l| l.flags & abi::MEDIA_LNK_FL_IMMUTABLE == 0)
+        .filter_map(|l| Some((ends(l.source)?, ends(l.sink)?)))
+        .filter(|&(s, k)| k == sink && s != source)
+        .collect()
+}
+
+/// An (entity, pad) for a message: `"Sensor B":0`.
+fn describe_pad(topo: &Topology, (entity, pad): (u32, u16)) -> String {
+    let name = topo
+        .entities
+        .iter()
+        .find(|e| e.id == entity)
+        .map_or_else(|| format!("entity {entity}"), |e| e.name.clone());
+    PadRef(name, pad).to_string()
+}
+
 /// The device node of an entity, through its interface link and sysfs's char-device table.
 fn devnode(topo: &Topology, entity: u32, sysfs_root: &Path) -> Result<PathBuf, String> {
     let intf = topo
@@ -368,6 +407,47 @@ mod tests {
             "\"imx258\" could be any of \"imx258 1-001a\", \"imx258 2-0010\": give the whole name"
         );
         assert_eq!(entity_id(&t, "imx258 2-0010"), Ok(5));
+    }
+
+    #[test]
+    fn other_enabled_links_into_the_sink_pad_are_the_ones_to_disable() {
+        // vimc's debayer sink fed by Sensor A (immutable here) and Sensor B (enabled): enabling
+        // B's link must not disturb anything else; enabling a third source must drop B's.
+        let mut t = graph();
+        for (id, name) in [(60, "Sensor B"), (70, "Sensor C")] {
+            t.entities.push(Entity {
+                id,
+                name: name.into(),
+                function: abi::MEDIA_ENT_F_CAM_SENSOR,
+            });
+            t.pads.push(Pad {
+                id: id + 1,
+                entity: id,
+                index: 0,
+                flags: abi::MEDIA_PAD_FL_SOURCE,
+            });
+        }
+        t.links[0].flags = abi::MEDIA_LNK_FL_ENABLED;
+        let link = |id, source, flags| Link {
+            id,
+            source,
+            sink: 6,
+            flags,
+        };
+        t.links.push(link(62, 61, 0));
+        t.links.push(link(72, 71, abi::MEDIA_LNK_FL_ENABLED));
+        // Enabling A: C's enabled link goes, B's (disabled) stays as it is.
+        assert_eq!(rivals(&t, (1, 0), (5, 0)), vec![((70, 0), (5, 0))]);
+        // Enabling B: both A's and C's go.
+        assert_eq!(
+            rivals(&t, (60, 0), (5, 0)),
+            vec![((1, 0), (5, 0)), ((70, 0), (5, 0))]
+        );
+        assert_eq!(describe_pad(&t, (70, 0)), "\"Sensor C\":0");
+        // An immutable link is the hardware's and is never touched; another pad's links neither.
+        t.links[0].flags |= abi::MEDIA_LNK_FL_IMMUTABLE;
+        assert_eq!(rivals(&t, (70, 0), (5, 0)), vec![]);
+        assert_eq!(rivals(&t, (60, 0), (5, 1)), vec![]);
     }
 
     #[test]
