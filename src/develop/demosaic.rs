@@ -62,14 +62,8 @@ fn encode(v: f32) -> f32 {
 }
 
 /// The inverse of `encode`.
-pub(super) fn decode(v: f32) -> f32 {
-    let a = v.abs();
-    v.signum()
-        * if a <= 0.04045 {
-            a / 12.92
-        } else {
-            ((a + 0.055) / 1.055).powf(2.4)
-        }
+fn decode(v: f32) -> f32 {
+    v.signum() * super::srgb_curve_inverse(v.abs())
 }
 
 /// Linear RGB, three channels, from a linear mosaic: Malvar–He–Cutler on its encoded samples.

@@ -131,6 +131,20 @@ pub fn srgb_encode(v: f32) -> f32 {
     srgb_curve(v.clamp(0.0, 1.0))
 }
 
+/// An sRGB value `v` (clamped to 0..=1) in linear light.
+pub fn srgb_decode(v: f32) -> f32 {
+    srgb_curve_inverse(v.clamp(0.0, 1.0))
+}
+
+/// The inverse of [`srgb_curve`], for `v` ≥ 0, not clamped above 1.
+fn srgb_curve_inverse(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// sRGB's transfer curve for `v` ≥ 0, not clamped above 1.
 fn srgb_curve(v: f32) -> f32 {
     if v <= 0.003_130_8 {

@@ -1,5 +1,5 @@
+use super::demosaic::demosaic;
 use super::demosaic::tests::{bilinear, bilinear_encoded};
-use super::demosaic::{decode, demosaic};
 use super::*;
 use crate::sim::{self, SimParams};
 use crate::stack::metrics::psnr;
@@ -11,7 +11,7 @@ fn linear(img: &Image<u8>) -> Image<f32> {
         img.channels,
         img.data
             .iter()
-            .map(|&v| decode(f32::from(v) / 255.0))
+            .map(|&v| srgb_decode(f32::from(v) / 255.0))
             .collect(),
     )
 }
