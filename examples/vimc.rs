@@ -6,6 +6,9 @@
 //! (the first needs vimc as loaded, unconfigured):
 //! - an unconfigured pipeline fails to stream with EPIPE, and the error says why;
 //! - profiles that do not match the graph fail naming the link or the pad;
+//! - with no profile configured, vimc's is chosen by its media model and streams;
+//! - with Debayer B's link into the scaler enabled instead of Debayer A's, the profile's link
+//!   replaces it (the other enabled link into the same pad is disabled first) and streams;
 //! - the shipped `vimc` profile streams RGB through debayer and scaler, a variant of it the raw
 //!   Bayer path, another a scaled frame;
 //! - the lens is found through the graph (Lens A, ancillary link to Sensor A), swept across a
@@ -17,7 +20,8 @@ use focusd::backend::sys::{monotonic_now, MonotonicClock};
 use focusd::backend::v4l2::pipeline;
 use focusd::backend::v4l2::profile::{LinkSpec, PadRef, PadSpec, Profile};
 use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
-use focusd::backend::videodev::abi::CID_FOCUS_ABSOLUTE;
+use focusd::backend::videodev::abi::{CID_FOCUS_ABSOLUTE, MEDIA_LNK_FL_ENABLED};
+use focusd::backend::videodev::media::{self, Topology};
 use focusd::backend::videodev::Device;
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Imu, Sensor, Take};
@@ -39,6 +43,8 @@ fn run() -> Check {
     fs::create_dir_all(TMP).map_err(|e| format!("{TMP}: {e}"))?;
     unconfigured()?;
     mismatches()?;
+    detected()?;
+    rival_link()?;
     let rgb = streams("RGB through debayer and scaler", shipped()?, (640, 480))?;
     let mut raw = shipped()?;
     raw.capture = "Raw Capture 0".into();
@@ -104,6 +110,8 @@ fn luma_spread(img: &Image<u8>) -> f64 {
 fn unconfigured() -> Check {
     let c = V4l2Config {
         device: Some(node("Raw Capture 0")?),
+        // Unset, the vimc profile would be chosen by the media model and set the graph up.
+        profile: Some("none".into()),
         lens: Some("Lens A".into()),
         format: Some("RGGB".into()),
         width: 640,
@@ -174,12 +182,114 @@ fn mismatches() -> Check {
         "pad \"Scaler\":1: asked for SRGGB8_1X8/640x480, the driver set RGB888_1X24/640x480",
     )?;
     let mut p = shipped()?;
+    p.sensor = "imx258".into();
+    expect_error(
+        &p,
+        "other-sensor",
+        "(\"VIMC MDEV\", but sensor \"imx258\": no entity is named \"imx258\"",
+    )?;
+    let mut p = shipped()?;
     p.media_model = "rkisp1".into();
     expect_error(
         &p,
         "other-device",
         "no media device has the model \"rkisp1\"",
     )
+}
+
+/// With no profile in the config, vimc's is chosen by its media model and streams.
+fn detected() -> Check {
+    let choice = v4l2::detect::detect(Path::new("/sys"))
+        .map_err(|e| format!("detect: {e}"))?
+        .ok_or("no profile chosen for vimc")?;
+    ensure!(
+        choice.profile.name == "vimc" && choice.reason == "the media device model \"VIMC MDEV\"",
+        "chose {} by {}",
+        choice.profile.name,
+        choice.reason
+    );
+    let mut cam = v4l2::open(&cfg(None)).map_err(|e| format!("open, profile chosen: {e}"))?;
+    let take = capture(&mut cam)?;
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ensure!(
+        (take.image.width, take.image.height) == (640, 480),
+        "the chosen profile captured {}x{}",
+        take.image.width,
+        take.image.height
+    );
+    ok(format!(
+        "no profile configured: {} chosen by {}, streams 640x480",
+        choice.profile.name, choice.reason
+    ));
+    Ok(())
+}
+
+/// vimc's media device and its graph.
+fn vimc_media() -> Result<(Device, Topology), String> {
+    let entries = fs::read_dir("/dev").map_err(|e| format!("/dev: {e}"))?;
+    for e in entries.flatten() {
+        if !e.file_name().to_string_lossy().starts_with("media") {
+            continue;
+        }
+        let Ok(dev) = Device::open(&e.path()) else {
+            continue;
+        };
+        if media::info(&dev).is_ok_and(|i| i.model == "VIMC MDEV") {
+            let topo = media::topology(&dev).map_err(|e| format!("topology: {e}"))?;
+            return Ok((dev, topo));
+        }
+    }
+    Err("no media device has the model \"VIMC MDEV\"".into())
+}
+
+/// A link's end: an entity and its pad's index.
+type End = (u32, u16);
+
+/// The data link from `source`'s pad 1 into the scaler's pad 0: (its ends, whether enabled).
+fn into_scaler(topo: &Topology, source: &str) -> Result<(End, End, bool), String> {
+    let entity = |name: &str| {
+        topo.entities
+            .iter()
+            .find(|e| e.name == name)
+            .map(|e| e.id)
+            .ok_or(format!("no entity {name:?}"))
+    };
+    let pad = |entity: u32, index: u32| {
+        topo.pads
+            .iter()
+            .find(|p| p.entity == entity && p.index == index)
+            .map(|p| p.id)
+            .ok_or(format!("entity {entity} has no pad {index}"))
+    };
+    let (src, sca) = (entity(source)?, entity("Scaler")?);
+    let (src_pad, sca_pad) = (pad(src, 1)?, pad(sca, 0)?);
+    let link = topo
+        .links
+        .iter()
+        .find(|l| l.source == src_pad && l.sink == sca_pad)
+        .ok_or(format!("no link {source}:1 -> Scaler:0"))?;
+    Ok(((src, 1), (sca, 0), link.flags & MEDIA_LNK_FL_ENABLED != 0))
+}
+
+fn rival_link() -> Check {
+    let (dev, topo) = vimc_media()?;
+    let (a, scaler, _) = into_scaler(&topo, "Debayer A")?;
+    let (b, _, _) = into_scaler(&topo, "Debayer B")?;
+    media::setup_link(&dev, a, scaler, false).map_err(|e| format!("disable A: {e}"))?;
+    media::setup_link(&dev, b, scaler, true).map_err(|e| format!("enable B: {e}"))?;
+    let (_, after) = vimc_media()?;
+    ensure!(
+        !into_scaler(&after, "Debayer A")?.2 && into_scaler(&after, "Debayer B")?.2,
+        "could not switch the scaler's input to Debayer B"
+    );
+    streams("RGB after Debayer B fed the scaler", shipped()?, (640, 480))?;
+    let (_, after) = vimc_media()?;
+    ensure!(
+        into_scaler(&after, "Debayer A")?.2 && !into_scaler(&after, "Debayer B")?.2,
+        "the profile left Debayer B's link into the scaler enabled"
+    );
+    ok("the profile's link replaced Debayer B's enabled link into the scaler");
+    Ok(())
 }
 
 /// Streams three frames with `profile`; returns its file path.

@@ -4,6 +4,7 @@ pub mod backend;
 pub mod bounded_read;
 pub mod capture;
 pub mod clip;
+pub mod develop;
 pub mod imageio;
 pub mod malloc;
 pub mod outputs;

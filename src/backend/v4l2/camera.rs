@@ -3,6 +3,8 @@
 //! the end.
 
 use super::config::V4l2Config;
+use super::config::NO_PROFILE;
+use super::detect;
 use super::exposure::{self, SensorTiming};
 use super::format::{self, fourcc_str, PixelFormat};
 use super::lens::{self, ControlInfo, ControlKind, ControlList, ControlSpec};
@@ -19,6 +21,7 @@ use crate::backend::videodev::abi::{
 };
 use crate::backend::videodev::{BufType, Device, PlaneLayout, Stream};
 use crate::capture::{Camera, CaptureError, Nanos, Take};
+use crate::develop::{Developer, IDENTITY};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -46,6 +49,9 @@ pub struct V4l2Camera {
     settled_at: Option<Nanos>,
     /// The previous frame's timestamp, for the frame interval when the driver gives none.
     last_stamp: Option<Nanos>,
+    /// Develops raw Bayer frames; its white balance, measured on the first, holds for the
+    /// whole stack.
+    developer: Developer,
 }
 
 struct Lens {
@@ -73,12 +79,23 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
     let spec = ControlSpec::parse(cfg.focus_control.as_deref())
         .map_err(|e| CaptureError::device("[camera] config", format!("focus_control {e}")))?;
     let profiled;
-    let cfg = match &cfg.profile {
+    // Raw frames are developed with the profile's black level and colour matrix.
+    let mut developer = Developer::new(0, IDENTITY);
+    let cfg = match profile_of(cfg)? {
         None => cfg,
-        Some(name) => {
-            let profile =
-                Profile::load(name).map_err(|e| CaptureError::device("[camera] profile", e))?;
-            let p = pipeline::apply(&profile, &cfg.sysfs_root)?;
+        Some((profile, chosen_by)) => {
+            developer = Developer::new(profile.black_level, profile.colour_matrix);
+            let p =
+                pipeline::apply(&profile, &cfg.sysfs_root).map_err(|e| match (e, chosen_by) {
+                    (CaptureError::Device { device, reason }, Some(why)) => CaptureError::Device {
+                        device: format!(
+                            "{device} (chosen by {why}; set [camera] profile to another, or to \
+                         \"none\")"
+                        ),
+                        reason,
+                    },
+                    (e, _) => e,
+                })?;
             profiled = V4l2Config {
                 device: Some(p.capture),
                 format: Some(profile.format.fourcc),
@@ -88,6 +105,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
                     .lens
                     .clone()
                     .or_else(|| p.lens.map(|l| l.display().to_string())),
+                profile: Some(profile.name),
                 ..cfg.clone()
             };
             &profiled
@@ -114,7 +132,8 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
             ),
         ));
     }
-    if cfg.profile.is_some() && (actual.width, actual.height) != (cfg.width, cfg.height) {
+    let profiled = matches!(cfg.profile.as_deref(), Some(p) if p != NO_PROFILE);
+    if profiled && (actual.width, actual.height) != (cfg.width, cfg.height) {
         // The capture node's size must equal its source pad's, or the stream fails with EPIPE.
         return Err(CaptureError::device(
             node.display().to_string(),
@@ -149,6 +168,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         frame_timeout: Duration::from_millis(cfg.frame_timeout_ms),
         settled_at: None,
         last_stamp: None,
+        developer,
     })
 }
 
@@ -277,6 +297,7 @@ impl Camera for V4l2Camera {
                             .zip(&self.planes)
                             .map(|(bytes, p)| (bytes, p.bytesperline as usize))
                             .collect::<Vec<_>>(),
+                        &mut self.developer,
                     )
                     .map(|image| Take {
                         image,
@@ -327,6 +348,20 @@ impl Drop for V4l2Camera {
     /// The sweep releases explicitly and sees the errors; here they have nowhere to go.
     fn drop(&mut self) {
         let _ = self.release();
+    }
+}
+
+/// The device profile to set the pipeline up with: the one `[camera] profile` names, none for
+/// `"none"`, else the shipped one this machine's device tree (or media model) chooses, with
+/// what chose it.
+fn profile_of(cfg: &V4l2Config) -> Result<Option<(Profile, Option<String>)>, CaptureError> {
+    let err = |e| CaptureError::device("[camera] profile", e);
+    match cfg.profile.as_deref() {
+        Some(NO_PROFILE) => Ok(None),
+        Some(spec) => Ok(Some((Profile::load(spec).map_err(err)?, None))),
+        None => Ok(detect::detect(&cfg.sysfs_root)
+            .map_err(err)?
+            .map(|c| (c.profile, Some(c.reason)))),
     }
 }
 
@@ -702,6 +737,38 @@ mod tests {
                 && msg.contains("`focusd fuse` still fuses stacks taken elsewhere"),
             "{msg}"
         );
+    }
+
+    #[test]
+    fn a_pinephone_found_by_its_device_tree_fails_at_once_and_says_why() {
+        let t = tempfile::tempdir().expect("tempdir");
+        let dt = t.path().join("sys/firmware/devicetree/base");
+        std::fs::create_dir_all(&dt).expect("mkdir");
+        std::fs::write(
+            dt.join("compatible"),
+            b"pine64,pinephone-1.2\0pine64,pinephone\0allwinner,sun50i-a64\0",
+        )
+        .expect("write");
+        let cfg = V4l2Config {
+            sysfs_root: t.path().join("sys"),
+            ..V4l2Config::default()
+        };
+        let msg = open(&cfg).err().expect("no lens").to_string();
+        assert!(
+            msg.starts_with(
+                "device profile pinephone (chosen by the device-tree compatible \
+                 \"pine64,pinephone-1.2\"; set [camera] profile to another, or to \"none\"): \
+                 this camera has no lens focusd can move"
+            ) && msg.contains("firmware autofocus"),
+            "{msg}"
+        );
+        // "none" turns the choice off: focusd then looks for a capture node as on any machine.
+        let none = V4l2Config {
+            profile: Some(NO_PROFILE.into()),
+            ..cfg
+        };
+        let msg = open(&none).err().expect("no nodes").to_string();
+        assert!(msg.contains("no video nodes"), "{msg}");
     }
 
     #[test]

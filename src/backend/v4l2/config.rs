@@ -6,6 +6,9 @@ use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
+/// `[camera] profile = "none"`: no device profile, even where one would be chosen.
+pub const NO_PROFILE: &str = "none";
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct V4l2Config {
@@ -16,7 +19,9 @@ pub struct V4l2Config {
     /// It sets the media pipeline up before streaming (links, pad formats) and gives the
     /// capture node, its format and size, and the lens through the media graph; `device`,
     /// `format`, `width` and `height` are then the profile's, and `lens` (when set) overrides
-    /// the graph's. Unset: no media-controller set-up (USB cameras, vivid).
+    /// the graph's. Unset: the shipped profile whose device-tree compatible this machine has
+    /// (or, for profiles no device tree names, whose media model it has), else none. `"none"`:
+    /// no media-controller set-up (USB cameras, vivid, a pipeline set up by hand).
     pub profile: Option<String>,
     /// Without `device`: the first capture node whose card or driver name (`query_caps`) or
     /// sysfs name contains this, case-insensitively; neither set: the first capture node.

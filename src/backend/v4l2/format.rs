@@ -1,30 +1,11 @@
 //! Pixel formats: which to ask the driver for, and turning a buffer of one into RGB.
 
+use crate::develop::raw::{self, Packing};
+pub use crate::develop::BayerOrder;
+use crate::develop::{Developer, Mosaic};
 use crate::stack::image::Image;
 
-/// The colour of the top-left 2×2 cell of a Bayer mosaic, by its V4L2 name.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BayerOrder {
-    Bggr,
-    Gbrg,
-    Grbg,
-    Rggb,
-}
-
-impl BayerOrder {
-    /// The channel (0 red, 1 green, 2 blue) of the sample at (x, y).
-    fn channel(self, x: usize, y: usize) -> usize {
-        let cell = match self {
-            BayerOrder::Bggr => [[2, 1], [1, 0]],
-            BayerOrder::Gbrg => [[1, 2], [0, 1]],
-            BayerOrder::Grbg => [[1, 0], [2, 1]],
-            BayerOrder::Rggb => [[0, 1], [1, 2]],
-        };
-        cell[y & 1][x & 1]
-    }
-}
-
-/// The formats focusd converts; all 8 bits per sample.
+/// The formats focusd converts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PixelFormat {
     Yuyv,
@@ -34,21 +15,45 @@ pub enum PixelFormat {
     Nv12m,
     Mjpg,
     Rgb3,
-    Bayer(BayerOrder),
+    /// Raw Bayer, developed by [`crate::develop`].
+    Bayer(BayerOrder, Packing),
 }
 
-const ALL: [PixelFormat; 10] = [
-    PixelFormat::Rgb3,
-    PixelFormat::Yuyv,
-    PixelFormat::Uyvy,
-    PixelFormat::Nv12,
-    PixelFormat::Nv12m,
-    PixelFormat::Mjpg,
-    PixelFormat::Bayer(BayerOrder::Bggr),
-    PixelFormat::Bayer(BayerOrder::Gbrg),
-    PixelFormat::Bayer(BayerOrder::Grbg),
-    PixelFormat::Bayer(BayerOrder::Rggb),
+const ORDERS: [BayerOrder; 4] = [
+    BayerOrder::Bggr,
+    BayerOrder::Gbrg,
+    BayerOrder::Grbg,
+    BayerOrder::Rggb,
 ];
+
+const PACKINGS: [Packing; 4] = [
+    Packing::Bits8,
+    Packing::Mipi10,
+    Packing::Le10,
+    Packing::Le16,
+];
+
+const ALL: [PixelFormat; 22] = {
+    let mut all = [PixelFormat::Rgb3; 22];
+    let others = [
+        PixelFormat::Yuyv,
+        PixelFormat::Uyvy,
+        PixelFormat::Nv12,
+        PixelFormat::Nv12m,
+        PixelFormat::Mjpg,
+    ];
+    let mut i = 0;
+    while i < others.len() {
+        all[i + 1] = others[i];
+        i += 1;
+    }
+    let mut k = 0;
+    while k < 16 {
+        all[6 + k] = PixelFormat::Bayer(ORDERS[k % 4], PACKINGS[k / 4]);
+        k += 1;
+    }
+    all
+};
 
 impl PixelFormat {
     pub fn from_fourcc(code: &[u8; 4]) -> Option<PixelFormat> {
@@ -63,33 +68,82 @@ impl PixelFormat {
             PixelFormat::Nv12m => b"NM12",
             PixelFormat::Mjpg => b"MJPG",
             PixelFormat::Rgb3 => b"RGB3",
-            PixelFormat::Bayer(BayerOrder::Bggr) => b"BA81",
-            PixelFormat::Bayer(BayerOrder::Gbrg) => b"GBRG",
-            PixelFormat::Bayer(BayerOrder::Grbg) => b"GRBG",
-            PixelFormat::Bayer(BayerOrder::Rggb) => b"RGGB",
+            PixelFormat::Bayer(order, packing) => bayer_fourcc(order, packing),
         }
     }
 
-    /// A fourcc as the config writes it, case-insensitively.
+    /// A fourcc as the config writes it: exactly, else case-insensitively where that names
+    /// one format (`pgAA` and `pGAA` are two).
     pub fn parse(s: &str) -> Result<PixelFormat, String> {
-        let code: Option<[u8; 4]> = s.to_ascii_uppercase().as_bytes().try_into().ok();
-        code.and_then(|c| PixelFormat::from_fourcc(&c))
-            .ok_or_else(|| format!("not a format focusd converts; it converts {}", supported()))
+        let name = |f: &PixelFormat| fourcc_str(&f.fourcc());
+        if let Some(f) = ALL.iter().find(|f| name(f) == s) {
+            return Ok(*f);
+        }
+        let like: Vec<&PixelFormat> = ALL
+            .iter()
+            .filter(|f| name(f).eq_ignore_ascii_case(s))
+            .collect();
+        match like.as_slice() {
+            [f] => Ok(**f),
+            [] => Err(format!(
+                "not a format focusd converts; it converts {}",
+                supported()
+            )),
+            many => {
+                let names: Vec<String> = many.iter().map(|f| name(f)).collect();
+                Err(format!(
+                    "ambiguous: {} differ only in case; give the fourcc exactly",
+                    names.join(" and ")
+                ))
+            }
+        }
+    }
+
+    /// The bits per sample of a raw Bayer format; `None` for formats an ISP produced.
+    pub fn raw_bits(self) -> Option<u32> {
+        match self {
+            PixelFormat::Bayer(_, packing) => Some(packing.bits()),
+            _ => None,
+        }
     }
 
     /// Lower is better. Focus measures and registration want every pixel's own detail:
     /// RGB3 needs no conversion; YUYV/UYVY keep full-resolution luma losslessly (chroma is
     /// halved only horizontally); NV12 halves chroma both ways; MJPG adds block artefacts that
-    /// look like texture to a focus measure; raw Bayer gets only a bilinear demosaic here, with
-    /// no white balance or colour correction from the ISP.
+    /// look like texture to a focus measure; raw Bayer is developed here, without the lens
+    /// shading and noise reduction an ISP would add, deeper samples first.
     pub fn rank(self) -> u8 {
         match self {
             PixelFormat::Rgb3 => 0,
             PixelFormat::Yuyv | PixelFormat::Uyvy => 1,
             PixelFormat::Nv12 | PixelFormat::Nv12m => 2,
             PixelFormat::Mjpg => 3,
-            PixelFormat::Bayer(_) => 4,
+            PixelFormat::Bayer(_, Packing::Bits8) => 5,
+            PixelFormat::Bayer(..) => 4,
         }
+    }
+}
+
+/// V4L2's fourcc of a Bayer format (videodev2.h).
+const fn bayer_fourcc(order: BayerOrder, packing: Packing) -> &'static [u8; 4] {
+    use BayerOrder::*;
+    match (packing, order) {
+        (Packing::Bits8, Bggr) => b"BA81",
+        (Packing::Bits8, Gbrg) => b"GBRG",
+        (Packing::Bits8, Grbg) => b"GRBG",
+        (Packing::Bits8, Rggb) => b"RGGB",
+        (Packing::Mipi10, Bggr) => b"pBAA",
+        (Packing::Mipi10, Gbrg) => b"pGAA",
+        (Packing::Mipi10, Grbg) => b"pgAA",
+        (Packing::Mipi10, Rggb) => b"pRAA",
+        (Packing::Le10, Bggr) => b"BG10",
+        (Packing::Le10, Gbrg) => b"GB10",
+        (Packing::Le10, Grbg) => b"BA10",
+        (Packing::Le10, Rggb) => b"RG10",
+        (Packing::Le16, Bggr) => b"BYR2",
+        (Packing::Le16, Gbrg) => b"GB16",
+        (Packing::Le16, Grbg) => b"GR16",
+        (Packing::Le16, Rggb) => b"RG16",
     }
 }
 
@@ -189,6 +243,7 @@ pub fn to_rgb_planes(
     width: usize,
     height: usize,
     planes: &[(&[u8], usize)],
+    raw_dev: &mut Developer,
 ) -> Result<Image<u8>, String> {
     match (fmt, planes) {
         (PixelFormat::Nv12m, &[(luma, luma_stride), (chroma, chroma_stride)]) => {
@@ -214,7 +269,7 @@ pub fn to_rgb_planes(
             "NM12: {} memory planes, 2 expected (luma and chroma)",
             planes.len()
         )),
-        (_, &[(bytes, stride)]) => to_rgb(fmt, width, height, stride, bytes),
+        (_, &[(bytes, stride)]) => to_rgb(fmt, width, height, stride, bytes, raw_dev),
         _ => Err(format!(
             "{}: {} memory planes, 1 expected",
             fourcc_str(&fmt.fourcc()),
@@ -260,14 +315,16 @@ fn nv12(
 }
 
 /// One frame of `fmt` in one buffer as 8-bit RGB. `stride` is the driver's bytes per line (0:
-/// packed); for NV12 (and NM12's planes laid end to end) it applies to both planes. A buffer
-/// too short for the geometry is an error.
+/// packed); for NV12 (and NM12's planes laid end to end) it applies to both planes. Raw Bayer
+/// is developed by `raw_dev` (its black level and colour matrix; the first raw frame locks its
+/// white balance). A buffer too short for the geometry is an error.
 pub fn to_rgb(
     fmt: PixelFormat,
     width: usize,
     height: usize,
     stride: usize,
     bytes: &[u8],
+    raw_dev: &mut Developer,
 ) -> Result<Image<u8>, String> {
     let name = fourcc_str(&fmt.fourcc());
     if width == 0 || height == 0 {
@@ -317,57 +374,61 @@ pub fn to_rgb(
             }
             out = img.into_rgb8().into_raw();
         }
-        PixelFormat::Bayer(order) => {
+        PixelFormat::Bayer(order, packing) => {
             if width < 2 || height < 2 {
                 return Err(format!(
                     "{name}: frame {width}x{height} is smaller than 2x2"
                 ));
             }
-            let stride = check_layout(&name, width, stride, height, 0, bytes)?;
-            demosaic(order, width, height, stride, bytes, &mut out);
+            let samples = raw::unpack(packing, width, height, stride, bytes)
+                .map_err(|e| format!("{name}: {e}"))?;
+            let m = Mosaic::from_samples(
+                &samples,
+                width,
+                height,
+                order,
+                packing.bits(),
+                raw_dev.black_level,
+            );
+            return Ok(raw_dev.develop(m));
         }
     }
     Ok(Image::from_vec(width, height, 3, out))
 }
 
-/// Bilinear demosaic: each missing channel is the mean of that channel's samples in the 3×3
-/// neighbourhood (inside the frame), which is the bilinear interpolation of the Bayer grid.
-/// Any 3×3 window clipped to a frame of at least 2×2 holds a whole 2×2 cell, so every channel
-/// has a sample.
-fn demosaic(
-    order: BayerOrder,
-    width: usize,
-    height: usize,
-    stride: usize,
-    bytes: &[u8],
-    out: &mut Vec<u8>,
-) {
-    for y in 0..height {
-        for x in 0..width {
-            let own = order.channel(x, y);
-            let mut sum = [0u32; 3];
-            let mut count = [0u32; 3];
-            for ny in y.saturating_sub(1)..=(y + 1).min(height - 1) {
-                for nx in x.saturating_sub(1)..=(x + 1).min(width - 1) {
-                    let c = order.channel(nx, ny);
-                    sum[c] += u32::from(bytes[ny * stride + nx]);
-                    count[c] += 1;
-                }
-            }
-            for c in 0..3 {
-                out.push(if c == own {
-                    bytes[y * stride + x]
-                } else {
-                    ((sum[c] + count[c] / 2) / count[c]) as u8
-                });
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::develop::{srgb_encode, IDENTITY};
+
+    /// Raw frames developed with no black level, no colour correction and white balance locked
+    /// at 1, so that a test sees the samples' own colours (sRGB-encoded).
+    fn neutral() -> Developer {
+        Developer {
+            black_level: 0,
+            matrix: IDENTITY,
+            white_balance: Some([1.0; 3]),
+        }
+    }
+
+    fn rgb(
+        f: PixelFormat,
+        w: usize,
+        h: usize,
+        stride: usize,
+        b: &[u8],
+    ) -> Result<Image<u8>, String> {
+        to_rgb(f, w, h, stride, b, &mut neutral())
+    }
+
+    fn rgb_planes(
+        f: PixelFormat,
+        w: usize,
+        h: usize,
+        p: &[(&[u8], usize)],
+    ) -> Result<Image<u8>, String> {
+        to_rgb_planes(f, w, h, p, &mut neutral())
+    }
 
     fn assert_flat(img: &Image<u8>, rgb: [u8; 3], tol: u8) {
         for (i, px) in img.data.chunks_exact(3).enumerate() {
@@ -388,7 +449,7 @@ mod tests {
         assert_eq!(PixelFormat::from_fourcc(b"H264"), None);
         assert_eq!(
             PixelFormat::from_fourcc(b"BA81"),
-            Some(PixelFormat::Bayer(BayerOrder::Bggr))
+            Some(PixelFormat::Bayer(BayerOrder::Bggr, Packing::Bits8))
         );
         assert_eq!(PixelFormat::parse("nv12"), Ok(PixelFormat::Nv12));
         assert!(PixelFormat::parse("NV1").is_err());
@@ -404,12 +465,12 @@ mod tests {
         assert_eq!(choose(&offered[..2], None), Ok(PixelFormat::Mjpg));
         assert_eq!(
             choose(&offered[..1], None),
-            Ok(PixelFormat::Bayer(BayerOrder::Bggr))
+            Ok(PixelFormat::Bayer(BayerOrder::Bggr, Packing::Bits8))
         );
         assert_eq!(choose(&[*b"UYVY", *b"RGB3"], None), Ok(PixelFormat::Rgb3));
         assert_eq!(
             choose(&offered, Some("ba81")),
-            Ok(PixelFormat::Bayer(BayerOrder::Bggr))
+            Ok(PixelFormat::Bayer(BayerOrder::Bggr, Packing::Bits8))
         );
     }
 
@@ -444,21 +505,20 @@ mod tests {
     #[test]
     fn yuyv_grey_and_red() {
         let grey =
-            to_rgb(PixelFormat::Yuyv, 4, 2, 8, &yuyv(4, 2, [126, 128, 128], 8)).expect("converts");
+            rgb(PixelFormat::Yuyv, 4, 2, 8, &yuyv(4, 2, [126, 128, 128], 8)).expect("converts");
         assert_eq!((grey.width, grey.height, grey.channels), (4, 2, 3));
         assert_flat(&grey, [128, 128, 128], 0);
         // Pure red in BT.601 limited range.
-        let red =
-            to_rgb(PixelFormat::Yuyv, 4, 2, 8, &yuyv(4, 2, [81, 90, 240], 8)).expect("converts");
+        let red = rgb(PixelFormat::Yuyv, 4, 2, 8, &yuyv(4, 2, [81, 90, 240], 8)).expect("converts");
         assert_flat(&red, [255, 0, 0], 1);
-        let black = to_rgb(PixelFormat::Yuyv, 2, 1, 0, &[16, 128, 16, 128]).expect("converts");
+        let black = rgb(PixelFormat::Yuyv, 2, 1, 0, &[16, 128, 16, 128]).expect("converts");
         assert_flat(&black, [0, 0, 0], 0);
     }
 
     #[test]
     fn yuyv_stride_padding_is_ignored_and_short_buffers_refused() {
         // 0xee padding after each 8-byte line would turn a pixel pink if it were read.
-        let img = to_rgb(
+        let img = rgb(
             PixelFormat::Yuyv,
             4,
             3,
@@ -469,21 +529,21 @@ mod tests {
         assert_flat(&img, [255, 255, 255], 0);
         let mut b = yuyv(4, 3, [235, 128, 128], 12);
         b.truncate(12 * 2 + 7);
-        let e = to_rgb(PixelFormat::Yuyv, 4, 3, 12, &b).expect_err("short");
+        let e = rgb(PixelFormat::Yuyv, 4, 3, 12, &b).expect_err("short");
         assert!(e.contains("too short, 32 needed"), "{e}");
-        let e = to_rgb(PixelFormat::Yuyv, 4, 3, 6, &b).expect_err("narrow stride");
+        let e = rgb(PixelFormat::Yuyv, 4, 3, 6, &b).expect_err("narrow stride");
         assert!(e.contains("stride 6 is shorter"), "{e}");
         assert!(
-            to_rgb(PixelFormat::Yuyv, 3, 1, 0, &[0; 8]).is_err(),
+            rgb(PixelFormat::Yuyv, 3, 1, 0, &[0; 8]).is_err(),
             "odd width"
         );
-        assert!(to_rgb(PixelFormat::Yuyv, 0, 1, 0, &[]).is_err(), "empty");
+        assert!(rgb(PixelFormat::Yuyv, 0, 1, 0, &[]).is_err(), "empty");
     }
 
     #[test]
     fn uyvy_red() {
         let b = [90u8, 81, 240, 81].repeat(4);
-        let img = to_rgb(PixelFormat::Uyvy, 4, 2, 0, &b).expect("converts");
+        let img = rgb(PixelFormat::Uyvy, 4, 2, 0, &b).expect("converts");
         assert_flat(&img, [255, 0, 0], 1);
     }
 
@@ -500,9 +560,9 @@ mod tests {
                 b[stride * h + y * stride + x + 1] = 240;
             }
         }
-        let img = to_rgb(PixelFormat::Nv12, w, h, stride, &b).expect("converts");
+        let img = rgb(PixelFormat::Nv12, w, h, stride, &b).expect("converts");
         assert_flat(&img, [255, 0, 0], 1);
-        let e = to_rgb(PixelFormat::Nv12, w, h, stride, &b[..stride * h + 3])
+        let e = rgb(PixelFormat::Nv12, w, h, stride, &b[..stride * h + 3])
             .expect_err("no chroma plane");
         assert!(e.contains("too short"), "{e}");
         // The same frame in two memory planes (NM12), each with its own stride.
@@ -513,20 +573,20 @@ mod tests {
             .copied()
             .collect();
         let planes = [(luma, stride), (&packed[..], w)];
-        let img2 = to_rgb_planes(PixelFormat::Nv12m, w, h, &planes).expect("converts");
+        let img2 = rgb_planes(PixelFormat::Nv12m, w, h, &planes).expect("converts");
         assert_eq!(img2.data, img.data);
-        let e = to_rgb_planes(PixelFormat::Nv12m, w, h, &planes[..1]).expect_err("one plane");
+        let e = rgb_planes(PixelFormat::Nv12m, w, h, &planes[..1]).expect_err("one plane");
         assert!(e.contains("1 memory planes, 2 expected"), "{e}");
-        let e = to_rgb_planes(PixelFormat::Nv12m, w, h, &[planes[0], (&packed[..5], w)])
+        let e = rgb_planes(PixelFormat::Nv12m, w, h, &[planes[0], (&packed[..5], w)])
             .expect_err("short chroma");
         assert!(e.contains("too short"), "{e}");
         // A one-plane format through the planes API is the single-buffer conversion.
         let yuyv = [126u8, 128, 126, 128];
         assert_eq!(
-            to_rgb_planes(PixelFormat::Yuyv, 2, 1, &[(&yuyv[..], 4)]),
-            to_rgb(PixelFormat::Yuyv, 2, 1, 4, &yuyv)
+            rgb_planes(PixelFormat::Yuyv, 2, 1, &[(&yuyv[..], 4)]),
+            rgb(PixelFormat::Yuyv, 2, 1, 4, &yuyv)
         );
-        assert!(to_rgb_planes(PixelFormat::Yuyv, 2, 1, &planes).is_err());
+        assert!(rgb_planes(PixelFormat::Yuyv, 2, 1, &planes).is_err());
     }
 
     #[test]
@@ -535,9 +595,9 @@ mod tests {
         for row in 0..2 {
             b[row * 8..][..6].copy_from_slice(&[10, 20, 30, 10, 20, 30]);
         }
-        let img = to_rgb(PixelFormat::Rgb3, 2, 2, 8, &b).expect("converts");
+        let img = rgb(PixelFormat::Rgb3, 2, 2, 8, &b).expect("converts");
         assert_flat(&img, [10, 20, 30], 0);
-        assert!(to_rgb(PixelFormat::Rgb3, 2, 2, 8, &b[..13]).is_err());
+        assert!(rgb(PixelFormat::Rgb3, 2, 2, 8, &b[..13]).is_err());
     }
 
     fn mosaic(order: BayerOrder, w: usize, h: usize, stride: usize, rgb: [u8; 3]) -> Vec<u8> {
@@ -550,37 +610,118 @@ mod tests {
         b
     }
 
+    /// The 8-bit sRGB code of a linear sample `v` of `max`.
+    fn enc(v: u16, max: f32) -> u8 {
+        (srgb_encode(f32::from(v) / max) * 255.0 + 0.5) as u8
+    }
+
+    const ORDERS: [BayerOrder; 4] = [
+        BayerOrder::Bggr,
+        BayerOrder::Gbrg,
+        BayerOrder::Grbg,
+        BayerOrder::Rggb,
+    ];
+
     #[test]
-    fn bayer_flat_colour_demosaics_to_that_colour() {
-        for order in [
-            BayerOrder::Bggr,
-            BayerOrder::Gbrg,
-            BayerOrder::Grbg,
-            BayerOrder::Rggb,
-        ] {
-            let rgb = [200, 120, 40];
-            let b = mosaic(order, 6, 5, 8, rgb);
-            let img = to_rgb(PixelFormat::Bayer(order), 6, 5, 8, &b).expect("converts");
-            assert_flat(&img, rgb, 1);
+    fn bayer_flat_colour_develops_to_that_colour() {
+        for order in ORDERS {
+            let b = mosaic(order, 6, 5, 8, [200, 120, 40]);
+            let img =
+                rgb(PixelFormat::Bayer(order, Packing::Bits8), 6, 5, 8, &b).expect("converts");
+            assert_flat(&img, [enc(200, 255.0), enc(120, 255.0), enc(40, 255.0)], 1);
         }
-        let order = BayerOrder::Rggb;
-        assert_eq!(order.channel(0, 0), 0);
-        assert_eq!(order.channel(1, 1), 2);
-        assert!(to_rgb(PixelFormat::Bayer(order), 1, 4, 0, &[0; 4]).is_err());
-        assert!(to_rgb(PixelFormat::Bayer(order), 6, 5, 8, &[0; 37]).is_err());
-        assert!(
-            to_rgb(PixelFormat::Bayer(order), 6, 5, 8, &[0; 38]).is_ok(),
-            "last row unpadded"
+        let f = PixelFormat::Bayer(BayerOrder::Rggb, Packing::Bits8);
+        assert!(rgb(f, 1, 4, 0, &[0; 4]).is_err());
+        let e = rgb(f, 6, 5, 8, &[0; 37]).expect_err("short");
+        assert_eq!(
+            e,
+            "RGGB: 6x5 frame: buffer of 37 bytes is too short, 38 needed"
         );
+        assert!(rgb(f, 6, 5, 8, &[0; 38]).is_ok(), "last row unpadded");
+    }
+
+    /// A flat colour (10-bit samples) in every raw packing, built by hand.
+    fn raw_buffer(
+        packing: Packing,
+        order: BayerOrder,
+        w: usize,
+        h: usize,
+        rgb: [u16; 3],
+    ) -> Vec<u8> {
+        let mut out = Vec::new();
+        for y in 0..h {
+            let row: Vec<u16> = (0..w).map(|x| rgb[order.channel(x, y)]).collect();
+            match packing {
+                Packing::Bits8 => out.extend(row.iter().map(|v| (v >> 2) as u8)),
+                Packing::Le10 => out.extend(row.iter().flat_map(|v| v.to_le_bytes())),
+                Packing::Le16 => out.extend(row.iter().flat_map(|v| (v << 6).to_le_bytes())),
+                Packing::Mipi10 => {
+                    for g in row.chunks(4) {
+                        out.extend(g.iter().map(|v| (v >> 2) as u8));
+                        out.push(
+                            g.iter()
+                                .enumerate()
+                                .fold(0, |l, (i, v)| l | ((v & 3) as u8) << (2 * i)),
+                        );
+                    }
+                }
+            }
+        }
+        out
     }
 
     #[test]
-    fn bayer_interpolates_between_samples() {
-        // RGGB 4x2 with red samples 0 and 100 at x = 0 and 2: red at x = 1 is their mean.
-        let b = [0, 9, 100, 9, 9, 0, 9, 0];
-        let img = to_rgb(PixelFormat::Bayer(BayerOrder::Rggb), 4, 2, 0, &b).expect("converts");
-        assert_eq!(img.at(1, 0, 0), 50);
-        assert_eq!(img.at(1, 0, 1), 9);
+    fn every_raw_packing_develops_the_same_colour() {
+        let rgb10 = [803, 402, 97];
+        for order in ORDERS {
+            for packing in PACKINGS {
+                let f = PixelFormat::Bayer(order, packing);
+                assert_eq!(PixelFormat::from_fourcc(&f.fourcc()), Some(f));
+                let b = raw_buffer(packing, order, 8, 4, rgb10);
+                let img = rgb(f, 8, 4, 0, &b).unwrap_or_else(|e| panic!("{f:?}: {e}"));
+                let want = match packing {
+                    Packing::Bits8 => rgb10.map(|v| enc(v >> 2, 255.0)),
+                    _ => rgb10.map(|v| enc(v, 1023.0)),
+                };
+                assert_flat(&img, want, 1);
+            }
+        }
+        // The profile's black level comes off before anything else: a pedestal of 64 (10-bit)
+        // under a grey of 64 + 480 develops to the grey 480 of 959.
+        let f = PixelFormat::Bayer(BayerOrder::Rggb, Packing::Mipi10);
+        let b = raw_buffer(Packing::Mipi10, BayerOrder::Rggb, 8, 4, [544; 3]);
+        let mut dev = Developer {
+            black_level: 64,
+            ..neutral()
+        };
+        let img = to_rgb(f, 8, 4, 0, &b, &mut dev).expect("converts");
+        let want = (srgb_encode(480.0 / 959.0) * 255.0 + 0.5) as u8;
+        assert_flat(&img, [want; 3], 0);
+    }
+
+    #[test]
+    fn fourccs_that_differ_only_in_case_need_the_exact_case() {
+        assert_eq!(
+            PixelFormat::parse("pgAA"),
+            Ok(PixelFormat::Bayer(BayerOrder::Grbg, Packing::Mipi10))
+        );
+        assert_eq!(
+            PixelFormat::parse("pGAA"),
+            Ok(PixelFormat::Bayer(BayerOrder::Gbrg, Packing::Mipi10))
+        );
+        let e = PixelFormat::parse("pgaa").expect_err("ambiguous");
+        assert_eq!(
+            e,
+            "ambiguous: pGAA and pgAA differ only in case; give the fourcc exactly"
+        );
+        assert_eq!(
+            PixelFormat::parse("praa"),
+            Ok(PixelFormat::Bayer(BayerOrder::Rggb, Packing::Mipi10))
+        );
+        assert_eq!(
+            PixelFormat::parse("rg10").map(PixelFormat::raw_bits),
+            Ok(Some(10))
+        );
     }
 
     #[test]
@@ -590,13 +731,13 @@ mod tests {
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
             .encode_image(&src)
             .expect("encodes");
-        let img = to_rgb(PixelFormat::Mjpg, 16, 8, 0, &jpeg).expect("decodes");
+        let img = rgb(PixelFormat::Mjpg, 16, 8, 0, &jpeg).expect("decodes");
         assert_flat(&img, [200, 60, 30], 6);
-        let e = to_rgb(PixelFormat::Mjpg, 32, 8, 0, &jpeg).expect_err("wrong size");
+        let e = rgb(PixelFormat::Mjpg, 32, 8, 0, &jpeg).expect_err("wrong size");
         assert!(
             e.contains("decodes to 16x8, not the negotiated 32x8"),
             "{e}"
         );
-        assert!(to_rgb(PixelFormat::Mjpg, 16, 8, 0, &jpeg[..20]).is_err());
+        assert!(rgb(PixelFormat::Mjpg, 16, 8, 0, &jpeg[..20]).is_err());
     }
 }

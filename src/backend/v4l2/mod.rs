@@ -8,6 +8,7 @@
 
 pub mod camera;
 pub mod config;
+pub mod detect;
 pub mod exposure;
 pub mod format;
 pub mod lens;

@@ -33,16 +33,18 @@ pub fn apply(profile: &Profile, sysfs_root: &Path) -> Result<Pipeline, CaptureEr
              here (`focusd fuse` still fuses stacks taken elsewhere)"
         )));
     }
-    let (media_path, dev) = open_media(&profile.media_model, sysfs_root).map_err(fail)?;
-    let topo = media::topology(&dev).map_err(|e| {
-        fail(format!(
-            "{}: cannot read its graph: {e}",
-            media_path.display()
-        ))
-    })?;
+    let (media_path, dev, topo) = open_media(profile, sysfs_root).map_err(fail)?;
     for link in &profile.links {
         let (source, sink, flags) = data_link(&topo, link).map_err(fail)?;
         if flags & abi::MEDIA_LNK_FL_IMMUTABLE == 0 {
+            for (other, other_sink) in rivals(&topo, source, sink) {
+                media::setup_link(&dev, other, other_sink, false).map_err(|e| {
+                    fail(format!(
+                        "link {link}: cannot disable the link from {} into the same pad: {e}",
+                        describe_pad(&topo, other)
+                    ))
+                })?;
+            }
             media::setup_link(&dev, source, sink, true)
                 .map_err(|e| fail(format!("link {link}: cannot enable it: {e}")))?;
         }
@@ -103,8 +105,10 @@ pub fn apply(profile: &Profile, sysfs_root: &Path) -> Result<Pipeline, CaptureEr
     })
 }
 
-/// The media device whose model is `model`.
-fn open_media(model: &str, sysfs_root: &Path) -> Result<(PathBuf, Device), String> {
+/// The media device whose model is the profile's and whose graph holds its sensor (a phone may
+/// have one media device per ISP or bridge, all with the same model), with its graph.
+fn open_media(profile: &Profile, sysfs_root: &Path) -> Result<(PathBuf, Device, Topology), String> {
+    let model = &profile.media_model;
     let dir = dev_dir(sysfs_root);
     let mut paths: Vec<PathBuf> = fs::read_dir(&dir)
         .map(|d| {
@@ -119,14 +123,28 @@ fn open_media(model: &str, sysfs_root: &Path) -> Result<(PathBuf, Device), Strin
     for path in paths {
         let info = Device::open(&path).and_then(|d| media::info(&d).map(|i| (d, i)));
         match info {
-            Ok((dev, info)) if info.model == model => return Ok((path, dev)),
+            Ok((dev, info)) if info.model == *model => match media::topology(&dev) {
+                Ok(topo) => match entity_id(&topo, &profile.sensor) {
+                    Ok(_) => return Ok((path, dev, topo)),
+                    Err(e) => found.push(format!(
+                        "{} ({model:?}, but sensor {:?}: {e})",
+                        path.display(),
+                        profile.sensor
+                    )),
+                },
+                Err(e) => found.push(format!(
+                    "{} ({model:?}, cannot read its graph: {e})",
+                    path.display()
+                )),
+            },
             Ok((_, info)) => found.push(format!("{} ({:?})", path.display(), info.model)),
             Err(e) => found.push(format!("{}: {e}", path.display())),
         }
     }
     Err(format!(
-        "no media device has the model {model:?} (is the camera driver loaded, is this the \
-         right profile?); found: {}",
+        "no media device has the model {model:?} and the sensor {:?} (is the camera driver \
+         loaded, is this the right profile?); found: {}",
+        profile.sensor,
         if found.is_empty() {
             "none".to_string()
         } else {
@@ -135,22 +153,47 @@ fn open_media(model: &str, sysfs_root: &Path) -> Result<(PathBuf, Device), Strin
     ))
 }
 
+/// Whether a graph entity's name is the one a profile gives: the same, or the same but for the
+/// bus and address an I²C sub-device's name ends with (`imx258` for `imx258 1-001a`).
+fn names_entity(profile_name: &str, entity_name: &str) -> bool {
+    entity_name == profile_name
+        || entity_name
+            .strip_prefix(profile_name)
+            .is_some_and(|rest| rest.starts_with(' '))
+}
+
+/// The entity a profile names: the one with that name, else the only one whose name is it
+/// followed by a space and more (an I²C sub-device's bus and address).
 fn entity_id(topo: &Topology, name: &str) -> Result<u32, String> {
-    topo.entities
+    if let Some(e) = topo.entities.iter().find(|e| e.name == name) {
+        return Ok(e.id);
+    }
+    let like: Vec<&media::Entity> = topo
+        .entities
         .iter()
-        .find(|e| e.name == name)
-        .map(|e| e.id)
-        .ok_or_else(|| {
+        .filter(|e| names_entity(name, &e.name))
+        .collect();
+    match like.as_slice() {
+        [e] => Ok(e.id),
+        [] => {
             let names: Vec<String> = topo
                 .entities
                 .iter()
                 .map(|e| format!("{:?}", e.name))
                 .collect();
-            format!(
+            Err(format!(
                 "no entity is named {name:?}; the graph has {}",
                 names.join(", ")
-            )
-        })
+            ))
+        }
+        many => {
+            let names: Vec<String> = many.iter().map(|e| format!("{:?}", e.name)).collect();
+            Err(format!(
+                "{name:?} could be any of {}: give the whole name",
+                names.join(", ")
+            ))
+        }
+    }
 }
 
 /// The pad object id of `p`.
@@ -179,6 +222,37 @@ fn data_link(topo: &Topology, link: &LinkSpec) -> Result<((u32, u16), (u32, u16)
         .ok_or_else(|| format!("link {link}: the graph has no such link"))?;
     let ends = |p: &PadRef| -> Result<(u32, u16), String> { Ok((entity_id(topo, &p.0)?, p.1)) };
     Ok((ends(&link.source)?, ends(&link.sink)?, l.flags))
+}
+
+/// The enabled, changeable data links into the pad `sink` from another source than `source`,
+/// as (source, sink) ends: a sink pad takes one source at a time (a receiver shared by two
+/// sensors, vimc's debayer fed by sensor A or B), and the kernel refuses a second enabled link
+/// rather than switch, so they are disabled before the profile's link is enabled.
+fn rivals(topo: &Topology, source: (u32, u16), sink: (u32, u16)) -> Vec<((u32, u16), (u32, u16))> {
+    let ends = |pad: u32| {
+        topo.pads
+            .iter()
+            .find(|p| p.id == pad)
+            .and_then(|p| Some((p.entity, u16::try_from(p.index).ok()?)))
+    };
+    topo.links
+        .iter()
+        .filter(|l| l.flags & abi::MEDIA_LNK_FL_LINK_TYPE == abi::MEDIA_LNK_FL_DATA_LINK)
+        .filter(|l| l.flags & abi::MEDIA_LNK_FL_ENABLED != 0)
+        .filter(|l| l.flags & abi::MEDIA_LNK_FL_IMMUTABLE == 0)
+        .filter_map(|l| Some((ends(l.source)?, ends(l.sink)?)))
+        .filter(|&(s, k)| k == sink && s != source)
+        .collect()
+}
+
+/// An (entity, pad) for a message: `"Sensor B":0`.
+fn describe_pad(topo: &Topology, (entity, pad): (u32, u16)) -> String {
+    let name = topo
+        .entities
+        .iter()
+        .find(|e| e.id == entity)
+        .map_or_else(|| format!("entity {entity}"), |e| e.name.clone());
+    PadRef(name, pad).to_string()
 }
 
 /// The device node of an entity, through its interface link and sysfs's char-device table.
@@ -317,6 +391,66 @@ mod tests {
     }
 
     #[test]
+    fn entities_are_named_with_or_without_their_bus_and_address() {
+        let mut t = graph();
+        t.entities[0].name = "imx258 1-001a".into();
+        assert_eq!(entity_id(&t, "imx258 1-001a"), Ok(1));
+        assert_eq!(entity_id(&t, "imx258"), Ok(1));
+        // A prefix counts only when a space follows it in the entity's name.
+        assert!(entity_id(&t, "imx25").is_err());
+        assert_eq!(entity_id(&t, "Lens A"), Ok(28));
+        assert_eq!(entity_id(&t, "Lens"), Ok(28));
+        t.entities[1].name = "imx258 2-0010".into();
+        let e = entity_id(&t, "imx258").expect_err("ambiguous");
+        assert_eq!(
+            e,
+            "\"imx258\" could be any of \"imx258 1-001a\", \"imx258 2-0010\": give the whole name"
+        );
+        assert_eq!(entity_id(&t, "imx258 2-0010"), Ok(5));
+    }
+
+    #[test]
+    fn other_enabled_links_into_the_sink_pad_are_the_ones_to_disable() {
+        // vimc's debayer sink fed by Sensor A (immutable here) and Sensor B (enabled): enabling
+        // B's link must not disturb anything else; enabling a third source must drop B's.
+        let mut t = graph();
+        for (id, name) in [(60, "Sensor B"), (70, "Sensor C")] {
+            t.entities.push(Entity {
+                id,
+                name: name.into(),
+                function: abi::MEDIA_ENT_F_CAM_SENSOR,
+            });
+            t.pads.push(Pad {
+                id: id + 1,
+                entity: id,
+                index: 0,
+                flags: abi::MEDIA_PAD_FL_SOURCE,
+            });
+        }
+        t.links[0].flags = abi::MEDIA_LNK_FL_ENABLED;
+        let link = |id, source, flags| Link {
+            id,
+            source,
+            sink: 6,
+            flags,
+        };
+        t.links.push(link(62, 61, 0));
+        t.links.push(link(72, 71, abi::MEDIA_LNK_FL_ENABLED));
+        // Enabling A: C's enabled link goes, B's (disabled) stays as it is.
+        assert_eq!(rivals(&t, (1, 0), (5, 0)), vec![((70, 0), (5, 0))]);
+        // Enabling B: both A's and C's go.
+        assert_eq!(
+            rivals(&t, (60, 0), (5, 0)),
+            vec![((1, 0), (5, 0)), ((70, 0), (5, 0))]
+        );
+        assert_eq!(describe_pad(&t, (70, 0)), "\"Sensor C\":0");
+        // An immutable link is the hardware's and is never touched; another pad's links neither.
+        t.links[0].flags |= abi::MEDIA_LNK_FL_IMMUTABLE;
+        assert_eq!(rivals(&t, (70, 0), (5, 0)), vec![]);
+        assert_eq!(rivals(&t, (60, 0), (5, 1)), vec![]);
+    }
+
+    #[test]
     fn the_lens_is_the_lens_entity_linked_to_the_sensor() {
         let t = graph();
         assert_eq!(lens_of(&t, 1), Some(28));
@@ -388,7 +522,12 @@ mod tests {
     #[test]
     fn no_media_device_lists_what_was_found() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let e = open_media("VIMC MDEV", &dir.path().join("sys")).expect_err("none");
-        assert!(e.contains("no media device has the model \"VIMC MDEV\"") && e.ends_with("none"));
+        let vimc = Profile::load("vimc").expect("vimc");
+        let e = open_media(&vimc, &dir.path().join("sys")).expect_err("none");
+        assert!(
+            e.contains("no media device has the model \"VIMC MDEV\" and the sensor \"Sensor A\"")
+                && e.ends_with("none"),
+            "{e}"
+        );
     }
 }

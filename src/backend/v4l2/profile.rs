@@ -9,11 +9,23 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The profiles shipped inside the binary, by name.
-pub const SHIPPED: [(&str, &str); 2] = [
+pub const SHIPPED: [(&str, &str); 5] = [
     ("vimc", include_str!("../../../config/devices/vimc.toml")),
     (
         "pinephone",
         include_str!("../../../config/devices/pinephone.toml"),
+    ),
+    (
+        "pinephone-pro",
+        include_str!("../../../config/devices/pinephone-pro.toml"),
+    ),
+    (
+        "librem5",
+        include_str!("../../../config/devices/librem5.toml"),
+    ),
+    (
+        "oneplus6",
+        include_str!("../../../config/devices/oneplus6.toml"),
     ),
 ];
 
@@ -22,14 +34,28 @@ pub const SHIPPED: [(&str, &str); 2] = [
 pub struct Profile {
     /// A short name for messages.
     pub name: String,
-    /// The media device's model (MEDIA_IOC_DEVICE_INFO), which picks the media device.
+    /// The device-tree compatibles of the phones this profile is for (`pine64,pinephone-pro`):
+    /// the first way a profile is chosen when the config names none.
+    #[serde(default)]
+    pub compatible: Vec<String>,
+    /// The media device's model (MEDIA_IOC_DEVICE_INFO), which picks the media device (and a
+    /// profile, when no device-tree compatible does).
     pub media_model: String,
-    /// The sensor's entity name; the lens is the lens entity linked to it.
+    /// The sensor's entity name; the lens is the lens entity linked to it. Like every entity
+    /// name here it may leave out the I²C bus and address the kernel appends (`imx258` for
+    /// `imx258 1-001a`), which depend on the board's wiring and probe order.
     pub sensor: String,
     /// The entity name of the video node to capture from.
     pub capture: String,
     /// The capture node's format.
     pub format: CaptureFormat,
+    /// The sensor's black level (its pedestal) in the capture format's sample values
+    /// (0..=255 for 8-bit Bayer), subtracted before white balance; 0 for formats an ISP has
+    /// already processed.
+    pub black_level: u32,
+    /// Camera RGB (black level removed, white balanced) to linear sRGB, row by row: each row
+    /// sums to 1, so a white-balanced grey stays grey. The identity where none is known.
+    pub colour_matrix: [[f32; 3]; 3],
     /// Where the lens is.
     pub lens: LensSpec,
     /// Data links to enable, in order.
@@ -154,8 +180,41 @@ impl Profile {
                 ));
             }
         }
-        super::format::PixelFormat::parse(&self.format.fourcc)
+        let format = super::format::PixelFormat::parse(&self.format.fourcc)
             .map_err(|e| format!("format.fourcc = {:?}: {e}", self.format.fourcc))?;
+        if let Some(c) = self.compatible.iter().find(|c| c.trim().is_empty()) {
+            return Err(format!(
+                "compatible has an empty entry {c:?}: give device-tree compatibles such as \
+                 \"pine64,pinephone-pro\" (see /proc/device-tree/compatible)"
+            ));
+        }
+        // Half the range: a larger pedestal is a value in the wrong units (10-bit for 8-bit).
+        let limit = format.raw_bits().map_or(0, |bits| 1u32 << (bits - 1));
+        if self.black_level > 0 && self.black_level >= limit {
+            return Err(match format.raw_bits() {
+                Some(bits) => format!(
+                    "black_level = {} is not below {limit}, half the range of the {bits}-bit \
+                     format {}: give it in the capture format's sample values",
+                    self.black_level, self.format.fourcc
+                ),
+                None => format!(
+                    "black_level = {}: format {} is not raw Bayer, its black level is the \
+                     ISP's; give 0",
+                    self.black_level, self.format.fourcc
+                ),
+            });
+        }
+        for (i, row) in self.colour_matrix.iter().enumerate() {
+            let sum: f32 = row.iter().sum();
+            if row.iter().any(|v| !v.is_finite()) || (sum - 1.0).abs() > 0.02 || row[i] <= 0.0 {
+                return Err(format!(
+                    "colour_matrix row {} = {row:?} sums to {sum}: each row must sum to 1 with \
+                     a positive diagonal (camera RGB to linear sRGB, white kept white; a DNG \
+                     ColorMatrix maps the other way and does not fit here)",
+                    i + 1
+                ));
+            }
+        }
         Ok(())
     }
 }
@@ -169,7 +228,26 @@ mod tests {
         for (name, text) in SHIPPED {
             let p = Profile::parse(text, name).expect("parses");
             assert_eq!(p.name, name);
+            // Every file says where its facts come from and what is unknown.
+            assert!(text.contains("Verified"), "{name} says what was verified");
+            let phone = name != "vimc";
+            assert_eq!(!p.compatible.is_empty(), phone, "{name}: compatibles");
         }
+        // Each phone's device-tree compatibles are its own.
+        let mut all: Vec<String> = SHIPPED
+            .iter()
+            .flat_map(|(n, t)| Profile::parse(t, n).expect("parses").compatible)
+            .collect();
+        let count = all.len();
+        all.sort();
+        all.dedup();
+        assert_eq!(all.len(), count, "a compatible in two profiles");
+        let pro = Profile::load("pinephone-pro").expect("pro");
+        assert_eq!((pro.black_level, pro.lens), (16, LensSpec::Graph));
+        assert!(matches!(
+            Profile::load("oneplus6").expect("op6").lens,
+            LensSpec::None { .. }
+        ));
         let vimc = Profile::load("vimc").expect("vimc");
         assert_eq!(vimc.media_model, "VIMC MDEV");
         assert_eq!(vimc.lens, LensSpec::Graph);
@@ -202,6 +280,40 @@ mod tests {
                 reason: "firmware autofocus only".into()
             }
         );
+    }
+
+    #[test]
+    fn black_level_matrix_and_compatibles_are_checked() {
+        let base = SHIPPED[0].1;
+        let raw = base.replace("fourcc = \"RGB3\"", "fourcc = \"RGGB\"");
+        let p = Profile::parse(&raw.replace("black_level = 0", "black_level = 64"), "t")
+            .expect("64 of 255");
+        assert_eq!(p.black_level, 64);
+        let e = Profile::parse(&raw.replace("black_level = 0", "black_level = 128"), "t")
+            .expect_err("10-bit value for an 8-bit format");
+        assert!(
+            e.contains("black_level = 128 is not below 128, half the range of the 8-bit"),
+            "{e}"
+        );
+        let e = Profile::parse(&base.replace("black_level = 0", "black_level = 3"), "t")
+            .expect_err("not raw");
+        assert!(e.contains("format RGB3 is not raw Bayer"), "{e}");
+        // A DNG ColorMatrix (XYZ to camera) pasted in: its rows do not sum to 1.
+        let dng = "[[1.384, -0.3203, -0.0124], [-0.2728, 1.049, 0.1556], [-0.0506, 0.2577, 0.805]]";
+        let identity = "[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]";
+        let e = Profile::parse(&base.replace(identity, dng), "t").expect_err("dng matrix");
+        assert!(
+            e.contains("colour_matrix row 1 = [1.384, -0.3203, -0.0124] sums to 1.05"),
+            "{e}"
+        );
+        let e = Profile::parse(
+            &base.replace("compatible = []", "compatible = [\" \"]"),
+            "t",
+        )
+        .expect_err("empty compatible");
+        assert!(e.contains("compatible has an empty entry"), "{e}");
+        let e = Profile::parse(&base.replace("black_level = 0\n", ""), "t").expect_err("missing");
+        assert!(e.contains("black_level"), "{e}");
     }
 
     #[test]

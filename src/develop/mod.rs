@@ -1,0 +1,218 @@
+//! Raw Bayer frames to a picture, as an ISP would: the samples unpacked ([`raw`]), the black
+//! level taken off, white balance, demosaic ([`demosaic`]), the camera's colour matrix, sRGB.
+//!
+//! Pure pixel work, no I/O: the V4L2 backend hands it buffers and a device profile's values.
+//!
+//! White balance is grey-world, measured once and then locked: a focus sweep changes what is
+//! sharp, not the light, and gains re-measured per frame would make the planes' colours flicker,
+//! which the fusion would then stitch together as visible seams.
+
+pub mod demosaic;
+pub mod raw;
+
+use crate::stack::image::Image;
+
+/// The colour of the top-left 2×2 cell of a Bayer mosaic, by its V4L2 name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BayerOrder {
+    Bggr,
+    Gbrg,
+    Grbg,
+    Rggb,
+}
+
+impl BayerOrder {
+    /// The channel (0 red, 1 green, 2 blue) of the sample at (x, y).
+    pub fn channel(self, x: usize, y: usize) -> usize {
+        let cell = match self {
+            BayerOrder::Bggr => [[2, 1], [1, 0]],
+            BayerOrder::Gbrg => [[1, 2], [0, 1]],
+            BayerOrder::Grbg => [[1, 0], [2, 1]],
+            BayerOrder::Rggb => [[0, 1], [1, 2]],
+        };
+        cell[y & 1][x & 1]
+    }
+}
+
+/// A Bayer frame in linear light: 0 at the black level, 1 at the sensor's white (noise may go
+/// a little below 0; it is kept so that averages stay unbiased).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Mosaic {
+    pub width: usize,
+    pub height: usize,
+    pub order: BayerOrder,
+    pub data: Vec<f32>,
+}
+
+impl Mosaic {
+    /// Integer samples of `bits` bits with the black level `black` (in the same units) taken
+    /// off and scaled so that the largest code is 1.
+    pub fn from_samples(
+        samples: &[u16],
+        width: usize,
+        height: usize,
+        order: BayerOrder,
+        bits: u32,
+        black: u32,
+    ) -> Mosaic {
+        let white = ((1u32 << bits) - 1) as f32;
+        let black = black as f32;
+        let scale = 1.0 / (white - black).max(1.0);
+        Mosaic {
+            width,
+            height,
+            order,
+            data: samples
+                .iter()
+                .map(|&v| (f32::from(v) - black) * scale)
+                .collect(),
+        }
+    }
+
+    /// The mosaic a sensor with this pattern would record of linear RGB `rgb` (three channels):
+    /// each pixel keeps its own colour. For simulations and tests.
+    pub fn sample(rgb: &Image<f32>, order: BayerOrder) -> Mosaic {
+        let data = (0..rgb.height)
+            .flat_map(|y| (0..rgb.width).map(move |x| (x, y)))
+            .map(|(x, y)| rgb.at(x, y, order.channel(x, y)))
+            .collect();
+        Mosaic {
+            width: rgb.width,
+            height: rgb.height,
+            order,
+            data,
+        }
+    }
+
+    /// Multiplies each sample by its colour's gain.
+    fn balance(&mut self, gains: [f32; 3]) {
+        for y in 0..self.height {
+            for x in 0..self.width {
+                self.data[y * self.width + x] *= gains[self.order.channel(x, y)];
+            }
+        }
+    }
+}
+
+/// Grey-world white balance over `frames`: gains for red, green and blue making the three
+/// colours' means over all frames equal, green's gain 1. Samples near clipping are left out (a
+/// clipped highlight is white whatever the light, and would pull the estimate towards no
+/// correction); a colour with no usable sample gets gain 1.
+pub fn grey_world(frames: &[&Mosaic]) -> [f32; 3] {
+    let mut sum = [0f64; 3];
+    let mut n = [0u64; 3];
+    for m in frames {
+        for y in 0..m.height {
+            for x in 0..m.width {
+                let v = m.data[y * m.width + x];
+                if v < 0.95 {
+                    let c = m.order.channel(x, y);
+                    sum[c] += f64::from(v.max(0.0));
+                    n[c] += 1;
+                }
+            }
+        }
+    }
+    let mean = |c: usize| sum[c] / n[c].max(1) as f64;
+    let g = mean(1);
+    let gain = |c: usize| {
+        let m = mean(c);
+        if m > 1e-6 && g > 1e-6 {
+            (g / m) as f32
+        } else {
+            1.0
+        }
+    };
+    [gain(0), 1.0, gain(2)]
+}
+
+/// The linear-light value `v` (clamped to 0..=1) in sRGB's transfer curve.
+pub fn srgb_encode(v: f32) -> f32 {
+    srgb_curve(v.clamp(0.0, 1.0))
+}
+
+/// An sRGB value `v` (clamped to 0..=1) in linear light.
+pub fn srgb_decode(v: f32) -> f32 {
+    srgb_curve_inverse(v.clamp(0.0, 1.0))
+}
+
+/// The inverse of [`srgb_curve`], for `v` ≥ 0, not clamped above 1.
+fn srgb_curve_inverse(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// sRGB's transfer curve for `v` ≥ 0, not clamped above 1.
+fn srgb_curve(v: f32) -> f32 {
+    if v <= 0.003_130_8 {
+        v * 12.92
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Linear RGB to 8-bit sRGB.
+pub fn encode(rgb: &Image<f32>) -> Image<u8> {
+    // A table over 12 bits of linear light: the curve's libm `powf` per sample would dominate.
+    const STEPS: usize = 4096;
+    let table: Vec<u8> = (0..=STEPS)
+        .map(|i| (srgb_encode(i as f32 / STEPS as f32) * 255.0 + 0.5) as u8)
+        .collect();
+    let data = rgb
+        .data
+        .iter()
+        .map(|&v| table[(v.clamp(0.0, 1.0) * STEPS as f32 + 0.5) as usize])
+        .collect();
+    Image::from_vec(rgb.width, rgb.height, rgb.channels, data)
+}
+
+/// How one camera's raw frames are developed, with its white balance once measured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Developer {
+    /// The sensor's pedestal in its samples' units, for [`Mosaic::from_samples`].
+    pub black_level: u32,
+    /// Camera RGB (balanced) to linear sRGB, row by row.
+    pub matrix: [[f32; 3]; 3],
+    /// The gains in use; `None` until the first frame measures them.
+    pub white_balance: Option<[f32; 3]>,
+}
+
+impl Developer {
+    pub fn new(black_level: u32, matrix: [[f32; 3]; 3]) -> Developer {
+        Developer {
+            black_level,
+            matrix,
+            white_balance: None,
+        }
+    }
+
+    /// Linear sRGB from a mosaic: white balance (measured on this frame if none is locked yet,
+    /// then locked), demosaic, colour matrix.
+    pub fn develop_linear(&mut self, mut m: Mosaic) -> Image<f32> {
+        let gains = *self.white_balance.get_or_insert_with(|| grey_world(&[&m]));
+        m.balance(gains);
+        let mut rgb = demosaic::demosaic(&m);
+        let k = self.matrix;
+        for px in rgb.data.chunks_exact_mut(3) {
+            let v = [px[0], px[1], px[2]];
+            for (out, row) in px.iter_mut().zip(k) {
+                *out = row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
+            }
+        }
+        rgb
+    }
+
+    /// 8-bit sRGB from a mosaic.
+    pub fn develop(&mut self, m: Mosaic) -> Image<u8> {
+        encode(&self.develop_linear(m))
+    }
+}
+
+/// The identity colour matrix.
+pub const IDENTITY: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,161 @@
+//! Raw sensor samples out of a frame buffer: one byte a sample, MIPI CSI-2 RAW10 packing (four
+//! samples in five bytes, what CSI receivers such as Qualcomm's store unaltered), or one
+//! little-endian 16-bit word a sample holding 10 or 16 significant bits.
+
+/// How a raw frame's samples sit in memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Packing {
+    /// One byte a sample (V4L2's SRGGB8).
+    Bits8,
+    /// MIPI RAW10 (V4L2's SRGGB10P): per four samples, their high eight bits in four bytes, then
+    /// one byte of their low two bits, the first sample's in bits 1..0.
+    Mipi10,
+    /// A little-endian 16-bit word a sample, 10 bits in its low bits (V4L2's SRGGB10).
+    Le10,
+    /// A little-endian 16-bit word a sample, all 16 bits significant (V4L2's SRGGB16).
+    Le16,
+}
+
+impl Packing {
+    /// Significant bits a sample.
+    pub fn bits(self) -> u32 {
+        match self {
+            Packing::Bits8 => 8,
+            Packing::Mipi10 | Packing::Le10 => 10,
+            Packing::Le16 => 16,
+        }
+    }
+
+    /// The bytes a row of `width` samples takes without padding.
+    pub fn row_bytes(self, width: usize) -> usize {
+        match self {
+            Packing::Bits8 => width,
+            Packing::Mipi10 => (width * 10).div_ceil(8),
+            Packing::Le10 | Packing::Le16 => width * 2,
+        }
+    }
+}
+
+/// The samples of a `width`×`height` frame, row by row. `stride` is the driver's bytes per line
+/// (0: rows unpadded); the last row need not be padded. A buffer too short for the geometry, or
+/// a stride shorter than a row, is an error naming both.
+pub fn unpack(
+    packing: Packing,
+    width: usize,
+    height: usize,
+    stride: usize,
+    bytes: &[u8],
+) -> Result<Vec<u16>, String> {
+    let row = packing.row_bytes(width);
+    let stride = if stride == 0 { row } else { stride };
+    if stride < row {
+        return Err(format!(
+            "stride {stride} is shorter than a row of {width} samples ({row} bytes)"
+        ));
+    }
+    let needed = stride * height.saturating_sub(1) + row;
+    if height == 0 || width == 0 || bytes.len() < needed {
+        return Err(format!(
+            "{width}x{height} frame: buffer of {} bytes is too short, {needed} needed",
+            bytes.len()
+        ));
+    }
+    let mut out = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let line = &bytes[y * stride..][..row];
+        match packing {
+            Packing::Bits8 => out.extend(line.iter().map(|&b| u16::from(b))),
+            Packing::Le10 | Packing::Le16 => out.extend(
+                line.chunks_exact(2)
+                    .map(|p| u16::from_le_bytes([p[0], p[1]])),
+            ),
+            Packing::Mipi10 => {
+                // A row's last group may hold fewer than four samples, its low-bits byte last.
+                for group in line.chunks(5) {
+                    let (high, low) = group.split_at(group.len() - 1);
+                    for (i, &h) in high.iter().enumerate() {
+                        out.push(u16::from(h) << 2 | u16::from(low[0] >> (2 * i)) & 3);
+                    }
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Packs samples the way MIPI RAW10 does, independently of `unpack`.
+    fn pack10(samples: &[u16]) -> Vec<u8> {
+        let mut out = Vec::new();
+        for g in samples.chunks(4) {
+            let mut low = 0u8;
+            for (i, &s) in g.iter().enumerate() {
+                out.push((s >> 2) as u8);
+                low |= ((s & 3) as u8) << (2 * i);
+            }
+            if g.len() == 4 {
+                out.push(low);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn mipi10_by_hand() {
+        // Samples 0x3ff, 0x001, 0x200, 0x155: high bytes ff 00 80 55, low bits 11 01 00 01
+        // from the first sample up: 0b01_00_01_11 = 0x47.
+        let row = [0xff, 0x00, 0x80, 0x55, 0x47];
+        assert_eq!(
+            unpack(Packing::Mipi10, 4, 1, 0, &row),
+            Ok(vec![0x3ff, 0x001, 0x200, 0x155])
+        );
+        assert_eq!(pack10(&[0x3ff, 0x001, 0x200, 0x155]), row);
+    }
+
+    #[test]
+    fn mipi10_rows_with_stride_and_a_partial_group() {
+        // 6 samples a row: one whole group and two samples of the next (8 bytes), rows of 10.
+        let samples: Vec<u16> = (0..18).map(|i| (i * 59 + 7) % 1024).collect();
+        let mut bytes = Vec::new();
+        for r in samples.chunks(6) {
+            let mut line = pack10(r);
+            // The partial group's low-bits byte: its samples' low bits, as a driver writes.
+            let low = (r[4] & 3) as u8 | ((r[5] & 3) as u8) << 2;
+            line.push(low);
+            assert_eq!(line.len(), Packing::Mipi10.row_bytes(6));
+            line.resize(10, 0xee);
+            bytes.extend(line);
+        }
+        bytes.truncate(10 * 2 + 8);
+        assert_eq!(unpack(Packing::Mipi10, 6, 3, 10, &bytes), Ok(samples));
+        let e = unpack(Packing::Mipi10, 6, 3, 10, &bytes[..27]).expect_err("short");
+        assert_eq!(e, "6x3 frame: buffer of 27 bytes is too short, 28 needed");
+        let e = unpack(Packing::Mipi10, 6, 3, 7, &bytes).expect_err("stride");
+        assert!(
+            e.starts_with("stride 7 is shorter than a row of 6 samples (8 bytes)"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn sixteen_bit_words_are_little_endian() {
+        let bytes = [0xff, 0x03, 0x00, 0x02, 0xee, 0xee, 0x34, 0x12, 0x01, 0x00];
+        assert_eq!(
+            unpack(Packing::Le10, 2, 2, 6, &bytes),
+            Ok(vec![0x3ff, 0x200, 0x1234, 0x0001])
+        );
+        assert_eq!(
+            unpack(Packing::Le16, 1, 1, 0, &[0xcd, 0xab]),
+            Ok(vec![0xabcd])
+        );
+        assert_eq!(
+            unpack(Packing::Bits8, 3, 1, 0, &[0, 128, 255]),
+            Ok(vec![0, 128, 255])
+        );
+        assert!(unpack(Packing::Le16, 2, 1, 0, &[0; 3]).is_err());
+        assert!(unpack(Packing::Bits8, 0, 1, 0, &[]).is_err());
+    }
+}

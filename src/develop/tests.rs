@@ -1,0 +1,206 @@
+use super::demosaic::demosaic;
+use super::demosaic::tests::{bilinear, bilinear_encoded};
+use super::*;
+use crate::sim::{self, SimParams};
+use crate::stack::metrics::psnr;
+
+fn linear(img: &Image<u8>) -> Image<f32> {
+    Image::from_vec(
+        img.width,
+        img.height,
+        img.channels,
+        img.data
+            .iter()
+            .map(|&v| srgb_decode(f32::from(v) / 255.0))
+            .collect(),
+    )
+}
+
+/// All-in-focus truths from the simulator: textured surfaces, objects with sharp occluding
+/// edges and a ruler, different for each seed.
+fn truths() -> Vec<Image<u8>> {
+    [3u64, 11, 29]
+        .iter()
+        .map(|&seed| {
+            sim::render(&SimParams {
+                width: 240,
+                height: 180,
+                planes: 2,
+                seed,
+                noise_sigma: 0.0,
+                ..SimParams::default()
+            })
+            .truth
+        })
+        .collect()
+}
+
+#[test]
+fn samples_become_linear_light_above_the_black_level() {
+    let m = Mosaic::from_samples(&[64, 1023, 544, 0], 2, 2, BayerOrder::Rggb, 10, 64);
+    let want = [0.0, 1.0, 480.0 / 959.0, -64.0 / 959.0];
+    for (got, want) in m.data.iter().zip(want) {
+        assert!((got - want).abs() < 1e-6, "{:?}", m.data);
+    }
+}
+
+#[test]
+fn demosaic_beats_bilinear_by_more_than_2_db_on_simulated_scenes() {
+    for (i, truth) in truths().iter().enumerate() {
+        let lin = linear(truth);
+        for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
+            let m = Mosaic::sample(&lin, order);
+            let good = psnr(&encode(&demosaic(&m)), truth, 2);
+            // What focusd did before: bilinear on the raw (linear) samples.
+            let before = psnr(&encode(&bilinear(&m)), truth, 2);
+            let same_domain = psnr(&encode(&bilinear_encoded(&m)), truth, 2);
+            eprintln!(
+                "scene {i} {order:?}: Malvar-He-Cutler on encoded samples {good:.2} dB, \
+                 bilinear {before:.2} dB (on encoded samples {same_domain:.2} dB)"
+            );
+            assert!(
+                good >= before.max(same_domain) + 2.0,
+                "scene {i} {order:?}: {good:.2} dB is not 2 dB above bilinear's {before:.2} and \
+                 {same_domain:.2} dB"
+            );
+        }
+    }
+}
+
+/// False colour on a neutral (grey) edge: the largest |R−G| or |B−G| in sRGB 8-bit units.
+fn fringe(img: &Image<u8>) -> u8 {
+    img.data
+        .chunks_exact(3)
+        .map(|p| p[0].abs_diff(p[1]).max(p[2].abs_diff(p[1])))
+        .max()
+        .unwrap_or(0)
+}
+
+/// Zipper along a vertical edge: the largest difference between a pixel and the one below it
+/// (each row of the image is the same).
+fn zipper(img: &Image<u8>) -> u8 {
+    let mut worst = 0;
+    for y in 2..img.height - 3 {
+        for x in 0..img.width {
+            for c in 0..3 {
+                worst = worst.max(img.at(x, y, c).abs_diff(img.at(x, y + 1, c)));
+            }
+        }
+    }
+    worst
+}
+
+#[test]
+fn grey_edges_get_less_false_colour_and_zipper() {
+    // A black-to-white edge at a slant (every sub-pixel phase), its ramp `width` px wide, as a
+    // sharp lens draws it (a one-pixel step is finer than any Bayer sensor can sample).
+    let edge = |slope: f32, width: f32| {
+        Image::from_fn(64, 64, 3, move |x, y, _| {
+            let d = x as f32 - 32.0 - slope * (y as f32 - 32.0);
+            (0.5 + d / width).clamp(0.0, 1.0) * 0.8 + 0.05
+        })
+    };
+    for width in [1.0f32, 3.0] {
+        for slope in [0.0f32, 0.2, 1.0] {
+            let m = Mosaic::sample(&edge(slope, width), BayerOrder::Rggb);
+            let good = encode(&demosaic(&m));
+            let base = encode(&bilinear(&m));
+            let (fg, fb) = (fringe(&good), fringe(&base));
+            eprintln!("edge {width} px, slope {slope}: false colour {fg}, bilinear {fb}");
+            assert!(
+                fg * 2 <= fb,
+                "width {width} slope {slope}: fringe {fg}, bilinear {fb}"
+            );
+            if slope == 0.0 {
+                let (zg, zb) = (zipper(&good), zipper(&base));
+                eprintln!("edge {width} px: zipper {zg}, bilinear {zb}");
+                assert!(zg * 2 <= zb, "width {width}: zipper {zg}, bilinear {zb}");
+            }
+        }
+    }
+}
+
+#[test]
+fn white_balance_is_measured_once_and_locked() {
+    // A grey scene under a warm light: red 1.6x, blue 0.6x green.
+    let light = [1.6f32, 1.0, 0.6];
+    let scene = |level: f32| {
+        Image::from_fn(32, 32, 3, move |x, y, c| {
+            let grey = level * (0.3 + 0.4 * (((x / 4 + y / 4) % 2) as f32));
+            grey * light[c] * 0.5
+        })
+    };
+    let first = Mosaic::sample(&scene(1.0), BayerOrder::Bggr);
+    let gains = grey_world(&[&first]);
+    for c in 0..3 {
+        assert!((gains[c] * light[c] - 1.0).abs() < 1e-3, "gains {gains:?}");
+    }
+    let mut dev = Developer::new(0, IDENTITY);
+    let a = dev.develop_linear(first);
+    assert_eq!(dev.white_balance, Some(gains));
+    // Grey again: the channels' means agree.
+    let mean = |c: usize| a.data.iter().skip(c).step_by(3).sum::<f32>() / 1024.0;
+    assert!((mean(0) / mean(1) - 1.0).abs() < 0.01 && (mean(2) / mean(1) - 1.0).abs() < 0.01);
+    // A later frame of a bluish subject keeps the first frame's gains: no flicker.
+    let bluish = Image::from_fn(32, 32, 3, |_, _, c| [0.1f32, 0.2, 0.5][c]);
+    let b = dev.develop_linear(Mosaic::sample(&bluish, BayerOrder::Bggr));
+    assert_eq!(dev.white_balance, Some(gains));
+    let want = [0.1 * gains[0], 0.2, 0.5 * gains[2]];
+    for (c, want) in want.into_iter().enumerate() {
+        let got = b.at(16, 16, c);
+        assert!(
+            (got - want).abs() < 1e-4,
+            "channel {c}: {got}, expected {want}"
+        );
+    }
+    // Over several frames the estimate is the frames' pooled means.
+    let two = grey_world(&[
+        &Mosaic::sample(&scene(1.0), BayerOrder::Bggr),
+        &Mosaic::sample(&bluish, BayerOrder::Bggr),
+    ]);
+    assert!(
+        two[2] < gains[2] && two[0] > gains[0],
+        "{two:?} vs {gains:?}"
+    );
+}
+
+#[test]
+fn clipped_highlights_do_not_count_for_white_balance() {
+    let mut rgb = Image::from_fn(16, 16, 3, |_, _, c| [0.4f32, 0.2, 0.1][c]);
+    for x in 0..16 {
+        for y in 0..8 {
+            for c in 0..3 {
+                rgb.data[(y * 16 + x) * 3 + c] = 1.0;
+            }
+        }
+    }
+    let gains = grey_world(&[&Mosaic::sample(&rgb, BayerOrder::Rggb)]);
+    assert!(
+        (gains[0] - 0.5).abs() < 1e-4 && (gains[2] - 2.0).abs() < 1e-4,
+        "{gains:?}"
+    );
+}
+
+#[test]
+fn the_colour_matrix_and_srgb_curve_are_applied() {
+    let grey = Image::from_fn(8, 8, 3, |_, _, _| 0.2f32);
+    // Rows summing to 1 keep a balanced grey grey; a swap matrix moves colour.
+    let mut dev = Developer::new(0, [[1.5, -0.3, -0.2], [-0.2, 1.4, -0.2], [0.0, -0.5, 1.5]]);
+    let out = dev.develop_linear(Mosaic::sample(&grey, BayerOrder::Grbg));
+    assert!(out.data.iter().all(|v| (v - 0.2).abs() < 1e-5));
+    let colour = Image::from_fn(8, 8, 3, |_, _, c| [0.5f32, 0.25, 0.125][c]);
+    let mut dev = Developer {
+        black_level: 0,
+        matrix: [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]],
+        white_balance: Some([1.0; 3]),
+    };
+    let out = dev.develop(Mosaic::sample(&colour, BayerOrder::Grbg));
+    let enc = |v: f32| (srgb_encode(v) * 255.0 + 0.5) as u8;
+    assert_eq!(
+        [out.at(4, 4, 0), out.at(4, 4, 1), out.at(4, 4, 2)],
+        [enc(0.125), enc(0.25), enc(0.5)]
+    );
+    assert_eq!((enc(0.0), enc(1.0), enc(2.0), enc(-1.0)), (0, 255, 255, 0));
+    // 18% grey is sRGB 118.
+    assert_eq!(enc(0.18), 118);
+}
