@@ -212,6 +212,11 @@ pub fn run(
         json.push(b'\n');
         outs.write(path, &json)?;
     }
+    // A cancel that came during the encoding and the writes still wins: nothing lands (the
+    // temporary files go with `outs`), and the job ends Failed("cancelled"), not Finished.
+    if progress.cancelled() {
+        return Err(FuseError::Cancelled.into());
+    }
     outs.commit()?;
     Ok(r)
 }
