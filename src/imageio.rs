@@ -29,8 +29,8 @@ impl Decoded {
 }
 
 /// What a decoder may allocate besides the pixels: ICC profiles, text chunks, strip buffers. A
-/// camera's ICC profile is a few KiB; a PNG whose iCCP chunk inflates to hundreds of MiB is
-/// refused while its header is read.
+/// camera's ICC profile is a few KiB; a PNG whose iCCP chunk inflates to hundreds of MiB has it
+/// dropped (the png crate stops inflating at this limit) while its header is read.
 const ANCILLARY_BYTES: u64 = 16 << 20;
 
 /// A frame's header: enough to plan the memory of a stack before any frame is decoded.
@@ -47,7 +47,7 @@ pub struct Header {
 /// Reads a frame's header only (for JPEG: the file up to its end-of-image marker), with the
 /// same checks as [`load`].
 pub fn probe(path: &Path) -> Result<Header> {
-    let (decoder, _) = open_decoder(path)?;
+    let decoder = open_decoder(path)?;
     header(path, &decoder)
 }
 
@@ -56,7 +56,7 @@ pub fn probe(path: &Path) -> Result<Header> {
 /// declares (at most [`MAX_PIXELS`]) and [`ANCILLARY_BYTES`] more.
 pub fn load(path: &Path) -> Result<Decoded> {
     let name = path.display();
-    let (mut decoder, _) = open_decoder(path)?;
+    let mut decoder = open_decoder(path)?;
     let Header { width, height, .. } = header(path, &decoder)?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(width as u32);
@@ -97,8 +97,8 @@ fn header(path: &Path, decoder: &impl ImageDecoder) -> Result<Header> {
     })
 }
 
-/// A decoder over the file with its header read under [`ANCILLARY_BYTES`], and its format.
-fn open_decoder(path: &Path) -> Result<(impl ImageDecoder, ImageFormat)> {
+/// A decoder over the file with its header read under [`ANCILLARY_BYTES`].
+fn open_decoder(path: &Path) -> Result<impl ImageDecoder> {
     let name = path.display();
     let cannot_read = |e: std::io::Error| anyhow!("{name}: cannot read: {e}");
     let file = bounded_read::open(path).map_err(|e| anyhow!("{name}: cannot open: {e}"))?;
@@ -121,28 +121,21 @@ fn open_decoder(path: &Path) -> Result<(impl ImageDecoder, ImageFormat)> {
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(ANCILLARY_BYTES);
     reader.limits(limits);
-    let decoder = reader
+    reader
         .into_decoder()
-        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
-    Ok((decoder, format))
+        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))
 }
 
 /// A multipage TIFF's first page is often a thumbnail: fusing it silently would be wrong.
 fn single_page(path: &Path) -> Result<()> {
     let name = path.display();
     let file = bounded_read::open(path).with_context(|| format!("{name}: cannot read"))?;
-    let mut tiff = tiff::decoder::Decoder::new(BufReader::new(file))
+    let tiff = tiff::decoder::Decoder::new(BufReader::new(file))
         .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
-    let mut pages = 1;
-    while tiff.more_images() && pages <= 64 {
-        tiff.next_image()
-            .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
-        pages += 1;
-    }
-    if pages > 1 {
+    if tiff.more_images() {
         bail!(
-            "{name}: a multipage TIFF ({pages} pages or more); focusd fuses single images: save \
-             the page you mean as a file of its own"
+            "{name}: a multipage TIFF; focusd fuses single images: save the page you mean as a \
+             file of its own"
         );
     }
     Ok(())
