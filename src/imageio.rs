@@ -47,8 +47,8 @@ pub struct Header {
 /// Reads a frame's header only (for JPEG: the file up to its end-of-image marker), with the
 /// same checks as [`load`].
 pub fn probe(path: &Path) -> Result<Header> {
-    let decoder = open_decoder(path)?;
-    header(path, &decoder)
+    let mut decoder = open_decoder(path)?;
+    header(path, &mut decoder)
 }
 
 /// Decodes a JPEG, PNG or TIFF file; gray stays 1 channel, anything else becomes RGB. The file
@@ -57,10 +57,11 @@ pub fn probe(path: &Path) -> Result<Header> {
 pub fn load(path: &Path) -> Result<Decoded> {
     let name = path.display();
     let mut decoder = open_decoder(path)?;
-    let Header { width, height, .. } = header(path, &decoder)?;
+    header(path, &mut decoder)?;
+    let (width, height) = decoder.dimensions();
     let mut limits = image::Limits::default();
-    limits.max_image_width = Some(width as u32);
-    limits.max_image_height = Some(height as u32);
+    limits.max_image_width = Some(width);
+    limits.max_image_height = Some(height);
     limits.max_alloc = Some(decoder.total_bytes().saturating_add(ANCILLARY_BYTES));
     let corrupt = |e| anyhow!("{name}: corrupt or truncated image: {e}");
     decoder.set_limits(limits).map_err(corrupt)?;
@@ -73,8 +74,10 @@ pub fn load(path: &Path) -> Result<Decoded> {
     Ok(from_dynamic(img))
 }
 
-/// The header's geometry, refused when focusd cannot fuse it faithfully.
-fn header(path: &Path, decoder: &impl ImageDecoder) -> Result<Header> {
+/// The header's geometry as the frame will be loaded (turned upright by its EXIF orientation, so
+/// a stack mixing stored orientations compares as it fuses), refused when focusd cannot fuse it
+/// faithfully.
+fn header(path: &Path, decoder: &mut impl ImageDecoder) -> Result<Header> {
     let name = path.display();
     let (w, h) = decoder.dimensions();
     if w as u64 * h as u64 > MAX_PIXELS {
@@ -89,6 +92,14 @@ fn header(path: &Path, decoder: &impl ImageDecoder) -> Result<Header> {
              stack to 16-bit integer TIFF or PNG with one scale for every frame"
         );
     }
+    let turned = matches!(
+        decoder.orientation(),
+        Ok(Orientation::Rotate90
+            | Orientation::Rotate270
+            | Orientation::Rotate90FlipH
+            | Orientation::Rotate270FlipH)
+    );
+    let (w, h) = if turned { (h, w) } else { (w, h) };
     Ok(Header {
         width: w as usize,
         height: h as usize,

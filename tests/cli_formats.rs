@@ -134,7 +134,8 @@ fn sixteen_bit_tiff_and_png_stay_sixteen_bit() {
 }
 
 /// A portrait shot stored as landscape pixels with EXIF orientation 6 (turn 90° clockwise) is
-/// fused upright, and the output's EXIF (the reference's Make kept) says upright.
+/// fused upright, also beside a frame stored upright, and the output's EXIF (the reference's
+/// Make kept) says upright.
 #[test]
 fn exif_orientation_is_applied_and_the_output_says_upright() {
     let dir = tempfile::tempdir().unwrap();
@@ -144,11 +145,16 @@ fn exif_orientation_is_applied_and_the_output_says_upright() {
     let frames: Vec<_> = (0..3)
         .map(|i| {
             let p = dir.path().join(format!("f{i}.jpg"));
-            std::fs::write(
-                &p,
-                jpeg_with_exif(&stored, exif_with(&format!("frame{i}"), Some(6))),
-            )
-            .unwrap();
+            // Frame 0 stored upright, without an orientation.
+            let bytes = if i == 0 {
+                jpeg_with_exif(
+                    &image::imageops::rotate90(&stored),
+                    exif_with("frame0", None),
+                )
+            } else {
+                jpeg_with_exif(&stored, exif_with(&format!("frame{i}"), Some(6)))
+            };
+            std::fs::write(&p, bytes).unwrap();
             p
         })
         .collect();
