@@ -99,74 +99,68 @@ impl Desk {
 
     /// Triggers feedbackd's feedback for `moment`.
     pub fn feedback(&self, moment: Moment) {
-        let Some(conn) = self.conn.clone() else {
-            return;
-        };
-        let missing = self.feedback_missing.clone();
-        tokio::spawn(async move {
-            let hints: HashMap<&str, Variant> = HashMap::new();
-            let r = conn
-                .call_method(
-                    Some("org.sigxcpu.Feedback"),
-                    "/org/sigxcpu/Feedback",
-                    Some("org.sigxcpu.Feedback"),
-                    "TriggerFeedback",
-                    // timeout -1: each feedback runs once.
-                    &(APP_ID, moment.event(), hints, -1i32),
-                )
-                .await;
-            if let Err(e) = r {
-                if !missing.swap(true, Ordering::Relaxed) {
-                    tracing::info!("no haptic feedback (feedbackd: {e})");
-                }
-            }
-        });
+        let hints: HashMap<&str, Variant> = HashMap::new();
+        // timeout -1: each feedback runs once.
+        let body = (APP_ID, moment.event(), hints, -1i32);
+        let missing = &self.feedback_missing;
+        self.call(
+            "org.sigxcpu.Feedback",
+            "TriggerFeedback",
+            body,
+            missing,
+            "haptic feedback",
+        );
     }
 
     /// A desktop notification: the finished picture (`Ok(path)`) or why it failed.
     pub fn notify(&self, result: Result<&str, &str>) {
+        let mut hints: HashMap<&str, Variant> = HashMap::new();
+        hints.insert("desktop-entry", Variant::from(APP_ID));
+        let (summary, body) = match result {
+            Ok(path) => {
+                hints.insert("image-path", Variant::from(format!("file://{path}")));
+                ("Focus stack saved", path.to_string())
+            }
+            Err(e) => ("Focus stack failed", e.to_string()),
+        };
+        let actions: Vec<&str> = Vec::new();
+        // app name, replaces id, icon, summary, body, actions, hints, expire (-1: the server's
+        // default).
+        let body = ("focusd", 0u32, APP_ID, summary, body, actions, hints, -1i32);
+        let missing = &self.notifications_missing;
+        self.call(
+            "org.freedesktop.Notifications",
+            "Notify",
+            body,
+            missing,
+            "desktop notifications",
+        );
+    }
+
+    /// Calls `method` of a session service (its interface named as the service, at the object
+    /// path its name spells) in a task of its own; a failure is logged the first time only.
+    fn call<B>(
+        &self,
+        service: &'static str,
+        method: &'static str,
+        body: B,
+        missing: &Arc<AtomicBool>,
+        what: &'static str,
+    ) where
+        B: serde::Serialize + zbus::zvariant::DynamicType + Send + Sync + 'static,
+    {
         let Some(conn) = self.conn.clone() else {
             return;
         };
-        let (summary, body, image) = match result {
-            Ok(path) => (
-                "Focus stack saved",
-                path.to_string(),
-                Some(path.to_string()),
-            ),
-            Err(e) => ("Focus stack failed", e.to_string(), None),
-        };
-        let missing = self.notifications_missing.clone();
+        let missing = missing.clone();
         tokio::spawn(async move {
-            let mut hints: HashMap<&str, Variant> = HashMap::new();
-            hints.insert("desktop-entry", Variant::from(APP_ID));
-            if let Some(path) = &image {
-                hints.insert("image-path", Variant::from(format!("file://{path}")));
-            }
-            let actions: Vec<&str> = Vec::new();
+            let path = format!("/{}", service.replace('.', "/"));
             let r = conn
-                .call_method(
-                    Some("org.freedesktop.Notifications"),
-                    "/org/freedesktop/Notifications",
-                    Some("org.freedesktop.Notifications"),
-                    "Notify",
-                    // app name, replaces id, icon, summary, body, actions, hints, expire (-1:
-                    // the server's default).
-                    &(
-                        "focusd",
-                        0u32,
-                        APP_ID,
-                        summary,
-                        body.as_str(),
-                        actions,
-                        hints,
-                        -1i32,
-                    ),
-                )
+                .call_method(Some(service), path.as_str(), Some(service), method, &body)
                 .await;
             if let Err(e) = r {
                 if !missing.swap(true, Ordering::Relaxed) {
-                    tracing::info!("no desktop notifications ({e})");
+                    tracing::info!("no {what} ({service}: {e})");
                 }
             }
         });
