@@ -16,6 +16,7 @@
 
 use super::Mosaic;
 use crate::stack::image::Image;
+use crate::stack::srgb;
 
 /// The mosaic with two samples of mirrored border on each side (mirrored about the edge sample,
 /// which keeps the colour pattern's phase), so the 5×5 filters need no bounds checks.
@@ -94,8 +95,8 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
 
 /// `filter` run on the mosaic's sRGB-encoded samples, its output decoded to linear light.
 fn encoded(m: &Mosaic, filter: fn(&Mosaic) -> Image<f32>) -> Image<f32> {
-    let encode = Curve::new(super::srgb_curve);
-    let decode = Curve::new(super::srgb_curve_inverse);
+    let encode = Curve::new(srgb::curve);
+    let decode = Curve::new(srgb::curve_inverse);
     let encoded = Mosaic {
         data: m.data.iter().map(|&v| encode.at(v)).collect(),
         ..m.clone()
@@ -189,7 +190,7 @@ pub(super) mod tests {
 
     #[test]
     fn the_tabulated_curves_follow_the_formulas() {
-        for f in [super::super::srgb_curve, super::super::srgb_curve_inverse] {
+        for f in [srgb::curve, srgb::curve_inverse] {
             let c = Curve::new(f);
             for i in -3000..=3000 {
                 let v = i as f32 / 1000.0;

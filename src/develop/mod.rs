@@ -126,33 +126,7 @@ pub fn grey_world(frames: &[&Mosaic]) -> [f32; 3] {
     [gain(0), 1.0, gain(2)]
 }
 
-/// The linear-light value `v` (clamped to 0..=1) in sRGB's transfer curve.
-pub fn srgb_encode(v: f32) -> f32 {
-    srgb_curve(v.clamp(0.0, 1.0))
-}
-
-/// An sRGB value `v` (clamped to 0..=1) in linear light.
-pub fn srgb_decode(v: f32) -> f32 {
-    srgb_curve_inverse(v.clamp(0.0, 1.0))
-}
-
-/// The inverse of [`srgb_curve`], for `v` ≥ 0, not clamped above 1.
-fn srgb_curve_inverse(v: f32) -> f32 {
-    if v <= 0.04045 {
-        v / 12.92
-    } else {
-        ((v + 0.055) / 1.055).powf(2.4)
-    }
-}
-
-/// sRGB's transfer curve for `v` ≥ 0, not clamped above 1.
-fn srgb_curve(v: f32) -> f32 {
-    if v <= 0.003_130_8 {
-        v * 12.92
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
-    }
-}
+pub use crate::stack::srgb::{decode as srgb_decode, encode as srgb_encode};
 
 /// Linear RGB to 8-bit sRGB.
 pub fn encode(rgb: &Image<f32>) -> Image<u8> {

@@ -283,8 +283,7 @@ impl Mixing {
     pub fn from_display(self, v: f32) -> f32 {
         match self {
             Mixing::Display => v,
-            Mixing::Linear if v <= 0.04045 => v / 12.92,
-            Mixing::Linear => ((v + 0.055) / 1.055).powf(2.4),
+            Mixing::Linear => crate::stack::srgb::curve_inverse(v),
         }
     }
 
@@ -294,8 +293,7 @@ impl Mixing {
         let v = v.clamp(0.0, 1.0);
         match self {
             Mixing::Display => v,
-            Mixing::Linear if v <= 0.003_130_8 => v * 12.92,
-            Mixing::Linear => 1.055 * v.powf(1.0 / 2.4) - 0.055,
+            Mixing::Linear => crate::stack::srgb::curve(v),
         }
     }
 }

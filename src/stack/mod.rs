@@ -14,6 +14,7 @@ pub mod metrics;
 pub mod params;
 pub mod pyramid;
 pub mod register;
+pub mod srgb;
 pub mod transform;
 
 /// The engine's stages, in the order a fuse runs them. Their names are a contract: the
