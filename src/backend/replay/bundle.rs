@@ -8,6 +8,7 @@ use crate::outputs::write_atomic;
 use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
+use std::io::{BufRead, Read as _};
 use std::path::{Component, Path, PathBuf};
 
 /// The current format version, written as `format = 1`.
@@ -205,23 +206,62 @@ fn inside(root: &Path, path: &Path) -> Result<PathBuf, BundleError> {
 }
 
 fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
-    let text = crate::bounded_read::read_to_string(path, MAX_CSV_BYTES)
-        .map_err(|e| err(path, format!("cannot read: {e}")))?;
-    parse_imu(&text).map_err(|r| err(path, r))
+    let cannot = |e: std::io::Error| err(path, format!("cannot read: {e}"));
+    let f = crate::bounded_read::open(path).map_err(cannot)?;
+    let len = f.metadata().map_err(cannot)?.len();
+    if len > MAX_CSV_BYTES {
+        return Err(err(
+            path,
+            format!("{len} bytes, over the {MAX_CSV_BYTES}-byte limit"),
+        ));
+    }
+    // One byte over the cap is read so that a file grown since the check is caught, not cut.
+    let mut r = std::io::BufReader::new(f.take(MAX_CSV_BYTES + 1));
+    let samples = parse_imu(&mut r).map_err(|r| err(path, r))?;
+    if r.into_inner().limit() == 0 {
+        return Err(err(
+            path,
+            format!("grew over the {MAX_CSV_BYTES}-byte limit while read"),
+        ));
+    }
+    Ok(samples)
 }
 
-/// Parses `imu.csv`: a `t_ns,sensor,x,y,z` header, then one sample per line, time never going
-/// backwards.
-pub fn parse_imu(text: &str) -> Result<Vec<ImuSample>, String> {
-    let mut lines = text.lines().enumerate();
-    match lines.next() {
-        Some((_, h)) if h.trim() == "t_ns,sensor,x,y,z" => {}
-        _ => return Err("line 1: expected the header t_ns,sensor,x,y,z".into()),
+/// Longest line of `imu.csv`: five numbers and a sensor name take well under 100 bytes; a longer
+/// line is refused before it is held whole.
+const MAX_CSV_LINE: u64 = 256;
+
+/// Parses `imu.csv` as it streams in: a `t_ns,sensor,x,y,z` header, then one sample per line, time
+/// never going backwards. Only one line (at most [`MAX_CSV_LINE`] bytes) is held at a time.
+pub fn parse_imu(mut r: impl BufRead) -> Result<Vec<ImuSample>, String> {
+    let mut buf = Vec::new();
+    let mut n = 0usize;
+    let mut next_line = |buf: &mut Vec<u8>| -> Result<Option<usize>, String> {
+        buf.clear();
+        n += 1;
+        let got = (&mut r)
+            .take(MAX_CSV_LINE + 1)
+            .read_until(b'\n', buf)
+            .map_err(|e| format!("line {n}: cannot read: {e}"))?;
+        if got == 0 {
+            return Ok(None);
+        }
+        if buf.len() as u64 > MAX_CSV_LINE {
+            return Err(format!("line {n}: longer than {MAX_CSV_LINE} bytes"));
+        }
+        Ok(Some(n))
+    };
+    let header = match next_line(&mut buf)? {
+        Some(_) => std::str::from_utf8(&buf).ok().map(str::trim),
+        None => None,
+    };
+    if header != Some("t_ns,sensor,x,y,z") {
+        return Err("line 1: expected the header t_ns,sensor,x,y,z".into());
     }
     let mut out = Vec::new();
     let mut last = Nanos::MIN;
-    for (i, line) in lines {
-        let n = i + 1;
+    while let Some(n) = next_line(&mut buf)? {
+        let line = std::str::from_utf8(&buf).map_err(|_| format!("line {n}: not UTF-8 text"))?;
         if line.trim().is_empty() {
             continue;
         }
@@ -387,10 +427,10 @@ exposure_end_ns = 400
     #[test]
     fn imu_csv_is_checked_line_by_line() {
         let ok = "t_ns,sensor,x,y,z\n1,gyro,0.1,0,0\n1,accel,0,9.8,0\n5,gyro,0,0,0\n";
-        let s = parse_imu(ok).unwrap();
+        let s = parse_imu(ok.as_bytes()).unwrap();
         assert_eq!(s.len(), 3);
         assert_eq!(s[1].sensor, Sensor::Accel);
-        let bad = |t: &str| parse_imu(t).unwrap_err();
+        let bad = |t: &str| parse_imu(t.as_bytes()).unwrap_err();
         assert!(bad("t,s,x\n").contains("header"));
         assert!(bad("t_ns,sensor,x,y,z\n5,gyro,0,0,0\n4,gyro,0,0,0\n")
             .contains("line 3: time goes backwards"));
@@ -398,6 +438,24 @@ exposure_end_ns = 400
         assert!(bad("t_ns,sensor,x,y,z\n5,magnet,0,0,0\n").contains("magnet"));
         assert!(bad("t_ns,sensor,x,y,z\n5,gyro,0,0\n").contains("4 fields"));
         assert!(bad("t_ns,sensor,x,y,z\n").contains("no samples"));
+        let long = format!(
+            "t_ns,sensor,x,y,z\n1,gyro,0,0,0\n2,gyro,{},0,0\n",
+            "0".repeat(300)
+        );
+        assert!(bad(&long).contains("line 3: longer than 256 bytes"));
+        assert!(parse_imu(&b"t_ns,sensor,x,y,z\n1,gyro,0,0,\xff\n"[..])
+            .unwrap_err()
+            .contains("line 2: not UTF-8"));
+    }
+
+    /// A trace of one endless line (as from a file that is all one line) is refused after at most
+    /// one line's worth of bytes is held, however long the rest is.
+    #[test]
+    fn an_endless_line_is_refused_after_the_line_cap() {
+        let endless = b"t_ns,sensor,x,y,z\n1,gyro,".chain(std::io::repeat(b'7'));
+        let mut counted = std::io::BufReader::with_capacity(64, endless);
+        let e = parse_imu(&mut counted).unwrap_err();
+        assert!(e.contains("line 2: longer than"), "{e}");
     }
 
     #[test]
@@ -439,7 +497,7 @@ exposure_end_ns = 400
 
         #[test]
         fn imu_parser_never_panics(s in "t_ns,sensor,x,y,z\n([-0-9]{0,20},(gyro|accel|x),[-0-9.eEnaif]{0,8},[0-9.]{0,4},[0-9.]{0,4}\n){0,5}") {
-            if let Ok(v) = parse_imu(&s) {
+            if let Ok(v) = parse_imu(s.as_bytes()) {
                 proptest::prop_assert!(v.windows(2).all(|w| w[0].t <= w[1].t));
             }
         }
