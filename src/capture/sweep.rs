@@ -94,18 +94,12 @@ impl SweepConfig {
                 ));
             }
         }
-        let positive = [
-            ("thresholds.gyro", self.thresholds.gyro),
-            ("thresholds.accel", self.thresholds.accel),
-            ("still_gyro_rms", self.still_gyro_rms),
-            ("focal_px", self.focal_px),
-        ];
-        if let Some(&(key, v)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
-            return Err(Invalid::new(
-                key,
-                format!("{key} = {v} must be a positive number"),
-            ));
-        }
+        // Wide enough for any phone's sensors and lenses, narrow enough that the products and
+        // sums the gate and the blur estimate form stay finite.
+        Bounds::new(1e-9, 10.0).check("thresholds.gyro", self.thresholds.gyro)?;
+        Bounds::new(1e-6, 1e3).check("thresholds.accel", self.thresholds.accel)?;
+        Bounds::new(1e-4, 10.0).check("still_gyro_rms", self.still_gyro_rms)?;
+        Bounds::new(10.0, 100_000.0).check("focal_px", self.focal_px)?;
         Bounds::new(0, 20).check("max_reshoots", self.max_reshoots)
     }
 }

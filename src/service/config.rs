@@ -213,7 +213,7 @@ mod tests {
         let (line, why) = err(text);
         assert_eq!(line, Some(5), "{why}");
         assert!(
-            why.contains("thresholds.gyro = -1 must be a positive number"),
+            why.contains("thresholds.gyro = -1 is out of range 0.000000001..=10"),
             "{why}"
         );
         let text = "[fuse]\nquality = 0\n";
