@@ -1,7 +1,10 @@
 //! Pixel kernels on one 3 MP plane (2048x1536), the size of a phone frame, to track the costs
-//! that dominate a fuse apart from the graph cut.
+//! that dominate a fuse apart from the graph cut; and developing one 3 MP raw frame, which a
+//! phone pays for every plane before the fuse starts.
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use focusd::develop::raw::{unpack, Packing};
+use focusd::develop::{BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::stack::blur::gaussian_blur;
 use focusd::stack::focus::{focus_amplitude, FocusParams};
 use focusd::stack::image::Plane;
@@ -36,6 +39,30 @@ fn bench_kernels(c: &mut Criterion) {
     });
     let pyr = laplacian_pyramid(&p, levels);
     g.bench_function("collapse", |b| b.iter(|| collapse(black_box(&pyr))));
+    // A MIPI RAW10 frame (the OnePlus 6's camss stores it packed) of the texture above: unpack,
+    // black level, white balance, demosaic, colour matrix, sRGB to 8 bits.
+    let codes: Vec<u16> = p.data.iter().map(|&v| (v * 1023.0) as u16).collect();
+    let packed: Vec<u8> = codes
+        .chunks_exact(4)
+        .flat_map(|q| {
+            let low = q
+                .iter()
+                .enumerate()
+                .fold(0u8, |a, (i, &v)| a | ((v & 3) as u8) << (2 * i));
+            q.iter()
+                .map(|&v| (v >> 2) as u8)
+                .chain([low])
+                .collect::<Vec<u8>>()
+        })
+        .collect();
+    let mut dev = Developer::new(64, IDENTITY);
+    g.bench_function("develop_raw10", |b| {
+        b.iter(|| {
+            let samples = unpack(Packing::Mipi10, w, h, 0, black_box(&packed)).unwrap();
+            let m = Mosaic::from_samples(&samples, w, h, BayerOrder::Rggb, 10, 64);
+            dev.develop(m)
+        })
+    });
     g.finish();
 }
 
