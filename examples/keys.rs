@@ -5,7 +5,7 @@
 //! `keys FOCUSD BUNDLE` starts a private bus and `FOCUSD serve --replay BUNDLE --paced` on it,
 //! makes virtual camera keys with uinput and checks, one `ok: ...` line each, then
 //! `KEYS-RESULT: PASS` or `FAIL`:
-//! - a press lands a picture in the output directory;
+//! - a press lands a picture in the Pictures folder of the session it serves (`$HOME/Pictures`);
 //! - a long press during a job cancels it (`Failed(job, "cancelled")`, nothing written);
 //! - a press during a job is ignored; the device destroyed mid-job leaves the job to finish and
 //!   the daemon serving; a new device appearing afterwards is picked up and its press works.
@@ -228,15 +228,13 @@ async fn start(focusd: &Path, bundle: &Path) -> Result<Setup, String> {
     let address = address.trim().to_string();
     ensure!(!address.is_empty(), "dbus-daemon printed no address");
     let bus = Kill(bus);
-    let out = tmp.join("out");
+    // No [output] dir: a session's service writes to focusd/ in the user's Pictures folder.
+    let home = tmp.join("home");
+    let out = home.join("Pictures/focusd");
     let config = tmp.join("focusd.toml");
     std::fs::write(
         &config,
-        format!(
-            "[output]\ndir = \"{}\"\n\n[trigger]\nkeys = [\"KEY_CAMERA\"]\nlong_press_ms = \
-             {LONG_PRESS_MS}\n",
-            out.display()
-        ),
+        format!("[trigger]\nkeys = [\"KEY_CAMERA\"]\nlong_press_ms = {LONG_PRESS_MS}\n"),
     )
     .map_err(|e| e.to_string())?;
     let log = tmp.join("focusd.log");
@@ -245,6 +243,8 @@ async fn start(focusd: &Path, bundle: &Path) -> Result<Setup, String> {
         .arg(bundle)
         .arg("--config")
         .arg(&config)
+        .env("HOME", &home)
+        .env_remove("XDG_CONFIG_HOME")
         .stderr(File::create(&log).map_err(|e| e.to_string())?)
         .spawn()
         .map_err(|e| format!("{}: {e}", focusd.display()))?;

@@ -212,7 +212,7 @@ impl EvdevKeys {
         }
         let summary = if self.devices.is_empty() {
             let which = match &self.config.device {
-                Some(d) => format!("input device {d}"),
+                Some(d) => format!("input device {d} is not in use"),
                 None => format!("no input device reports {}", self.key_names()),
             };
             let refused = if refused.is_empty() {
@@ -342,5 +342,58 @@ impl Keys for EvdevKeys {
                 self.scan();
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::backend::sys::monotonic_now;
+
+    #[test]
+    fn what_is_not_an_input_device_is_said_and_a_new_node_is_looked_at() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("event0"), "").unwrap();
+        std::fs::write(dir.path().join("mouse0"), "").unwrap();
+        let mut keys = EvdevKeys::open_in(&TriggerConfig::default(), dir.path());
+        assert!(keys.devices.is_empty());
+        assert!(
+            keys.said
+                .starts_with("trigger keys: no input device reports KEY_CAMERA; cannot use ")
+                && keys.said.contains("event0: not a character device")
+                && !keys.said.contains("mouse0"),
+            "{}",
+            keys.said
+        );
+        assert!(matches!(
+            keys.wait(Some(monotonic_now())),
+            Some(Seen::Timeout { .. })
+        ));
+        // A node appearing wakes the wait (inotify, queued before the wait begins), which looks
+        // at it; the wait then runs to its deadline.
+        std::fs::write(dir.path().join("event1"), "").unwrap();
+        let until = monotonic_now() + 200_000_000;
+        assert!(matches!(keys.wait(Some(until)), Some(Seen::Timeout { .. })));
+        assert!(
+            keys.said.contains("event1: not a character device"),
+            "{}",
+            keys.said
+        );
+    }
+
+    #[test]
+    fn a_named_device_that_is_missing_is_said() {
+        let dir = tempfile::tempdir().unwrap();
+        let config = TriggerConfig {
+            device: Some(dir.path().join("event7").display().to_string()),
+            ..TriggerConfig::default()
+        };
+        let keys = EvdevKeys::open_in(&config, dir.path());
+        assert!(
+            keys.said.contains("is not in use; cannot use ")
+                && keys.said.contains("event7: No such file"),
+            "{}",
+            keys.said
+        );
     }
 }
