@@ -167,6 +167,13 @@ impl EvdevKeys {
                 {
                     continue
                 }
+                Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => {
+                    refused.push(format!(
+                        "{}: {e} (systemd/70-focusd.rules gives key devices to group focusd)",
+                        path.display()
+                    ));
+                    continue;
+                }
                 Err(e) => {
                     refused.push(format!("{}: {e}", path.display()));
                     continue;
@@ -256,23 +263,28 @@ impl EvdevKeys {
                 }
             }
             Err(e) => {
-                let dev = self.devices.remove(&id).expect("present");
+                let Some(dev) = self.devices.remove(&id) else {
+                    return;
+                };
+                self.pending.push_back(Seen::Lost { device: id });
                 if e.raw_os_error() == Some(libc::ENODEV) {
                     tracing::info!(
                         "trigger keys: {} ({}) went away",
                         dev.path.display(),
                         dev.name
                     );
+                    // Says what is left (the gone node cannot be opened again: ENODEV).
+                    self.said.clear();
+                    self.scan();
                 } else {
+                    // Not reopened until /dev/input changes: a device failing every read would
+                    // otherwise be reopened and fail again, round and round.
                     tracing::warn!(
-                        "trigger keys: {} ({}): {e}; no longer used",
+                        "trigger keys: {} ({}): {e}; not used until /dev/input changes",
                         dev.path.display(),
                         dev.name
                     );
                 }
-                self.pending.push_back(Seen::Lost { device: id });
-                self.said.clear();
-                self.scan();
             }
         }
     }
