@@ -4,7 +4,9 @@
 //! The bus runs on tokio; jobs run on one worker thread fed by a crossbeam channel (the camera
 //! and the IMU are used by one job at a time, and a fuse keeps the cores busy for seconds, which
 //! must not stall the bus). The worker reports back through an unbounded tokio channel, which a
-//! task turns into signals.
+//! task turns into signals. The trigger keys (`[trigger]`) are read on a thread of their own
+//! that only hands each press or long press to the main loop, which starts or cancels a job as
+//! the `Capture` and `Cancel` methods do.
 //!
 //! The main loop watches the worker (`watchdog`): it sends systemd `WATCHDOG=1` only while the
 //! worker is idle or its job beats. A job without progress for `[service] stall_timeout_s`, or
