@@ -445,3 +445,26 @@ fn without_an_output_dir_pictures_land_in_the_users_localised_pictures_folder() 
         );
     });
 }
+
+/// A trigger key device that is not one (here /dev/null, then a path that does not exist) is a
+/// log line naming it; the service serves D-Bus captures all the same.
+#[test]
+fn a_trigger_device_that_is_not_an_input_device_is_a_log_line_and_captures_still_work() {
+    let bus = Bus::start();
+    for (device, says) in [
+        ("/dev/null", "/dev/null: a mem device, not an evdev node"),
+        ("/nonexistent/event9", "/nonexistent/event9: No such file"),
+    ] {
+        let tables = format!("[trigger]\nkeys = [\"KEY_VOLUMEUP\"]\ndevice = {device:?}\n");
+        let d = Daemon::start_full(&bus, Some(&bundle_dir("calm")), false, &[], &tables, &[]);
+        d.wait_for_log(&format!(
+            "trigger keys: input device {device} is not in use; cannot use"
+        ));
+        assert!(d.log().contains(says), "{}", d.log());
+        runtime().block_on(async {
+            let (_conn, proxy) = connect(&bus).await;
+            let path = capture_and_wait(&proxy).await.unwrap();
+            assert!(Path::new(&path).exists());
+        });
+    }
+}

@@ -1,4 +1,5 @@
-//! The two C library calls std does not expose, for the V4L2 and IIO backends:
+//! What std does not expose, for the V4L2, IIO and input backends: a device node's kernel class
+//! (from sysfs), and two C library calls:
 //! `clock_gettime(CLOCK_MONOTONIC)` (std's `Instant` reads that clock but never shows its value,
 //! and IIO and V4L2 timestamps are compared against it) and `poll(2)` (a blocking read of
 //! /dev/iio:deviceN cannot be interrupted, so the reader waits for readability with a timeout
@@ -46,6 +47,47 @@ pub fn wait_readable(fd: &impl AsRawFd, timeout_ms: c_int) -> io::Result<bool> {
             }
         }
     }
+}
+
+/// Opens the device node `path` non-blocking (`write`: read-write, else read-only), refusing
+/// anything but a character device of one of the kernel `classes` before any ioctl: a config
+/// naming a regular file, a FIFO or another kind of device (`/dev/zero`) gets an error saying
+/// what it names (`what`: "a V4L2 video, sub-device or media node"), not a confusing ioctl
+/// failure or a hang.
+pub fn open_device(
+    path: &std::path::Path,
+    write: bool,
+    classes: &[&str],
+    what: &str,
+) -> io::Result<std::fs::File> {
+    use std::os::unix::fs::{FileTypeExt, MetadataExt, OpenOptionsExt};
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(write)
+        .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
+        .open(path)?;
+    let meta = file.metadata()?;
+    if !meta.file_type().is_char_device() {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("not a character device ({what})"),
+        ));
+    }
+    match device_class(meta.rdev()) {
+        Some(class) if !classes.contains(&class.as_str()) => Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("a {class} device, not {what}"),
+        )),
+        _ => Ok(file),
+    }
+}
+
+/// The kernel class of a character device (`video4linux`, `media`, `mem`...), from sysfs; `None`
+/// where sysfs does not say (then the ioctls will).
+fn device_class(rdev: u64) -> Option<String> {
+    let (major, minor) = (libc::major(rdev), libc::minor(rdev));
+    let link = std::fs::read_link(format!("/sys/dev/char/{major}:{minor}/subsystem")).ok()?;
+    Some(link.file_name()?.to_string_lossy().into_owned())
 }
 
 /// The real clock of a phone's sweep.

@@ -7,6 +7,7 @@
 pub mod gate;
 pub mod record;
 pub mod sweep;
+pub mod trigger;
 
 use crate::stack::image::Image;
 use serde::{Deserialize, Serialize};

@@ -3,6 +3,7 @@
 
 use super::fuse_settings::FuseSettings;
 use crate::backend::iio::IioConfig;
+use crate::backend::input::TriggerConfig;
 use crate::backend::v4l2::V4l2Config;
 use crate::capture::sweep::SweepConfig;
 use crate::setting::{Bounds, Invalid};
@@ -104,6 +105,7 @@ pub struct Config {
     pub fuse: FuseSettings,
     pub output: OutputConfig,
     pub service: ServiceConfig,
+    pub trigger: TriggerConfig,
 }
 
 /// A config file that cannot be used; the message is `FILE:LINE: problem`.
@@ -147,6 +149,7 @@ impl Config {
             ("fuse", self.fuse.validate()),
             ("output", self.output.validate()),
             ("service", self.service.validate()),
+            ("trigger", self.trigger.validate()),
         ] {
             if let Err(e) = result {
                 return Err((line_of(text, table, e.key), format!("[{table}] {e}")));
@@ -197,6 +200,7 @@ mod tests {
         assert_eq!(c.fuse, spelled.fuse);
         assert_eq!(c.output.format, spelled.output.format);
         assert_eq!(c.service, spelled.service);
+        assert_eq!(c.trigger, spelled.trigger);
     }
 
     #[test]
@@ -254,6 +258,28 @@ mod tests {
                 "[service] stall_timeout_s = 0 is out of range 1..=3600".to_string()
             )
         );
+        let text = "[trigger]\nkeys = [\"KEY_VOLUMEUP\"]\nlong_press_ms = 50\n";
+        assert_eq!(
+            err(text),
+            (
+                Some(3),
+                "[trigger] long_press_ms = 50 is out of range 100..=10000".to_string()
+            )
+        );
+        let (line, why) = err("[trigger]\nkeys = [\"KEY_CAMERA_FOCUS\"]\n");
+        assert_eq!(line, Some(2), "{why}");
+        assert!(why.starts_with("[trigger] keys: KEY_CAMERA_FOCUS is the camera key's half-press"));
+        let (line, why) = err("\n[trigger]\nkeys = [\"KEY_CAMERA\", \"camera\"]\n");
+        assert_eq!(line, Some(3), "{why}");
+        assert!(
+            why.contains("\"camera\" is not a key focusd knows"),
+            "{why}"
+        );
+        assert!(err("[trigger]\ndevice = \"\"\n")
+            .1
+            .contains("device is empty"));
+        let c = Config::parse("[trigger]\nkeys = []\ndevice = \"gpio-keys\"\n").unwrap();
+        assert!(c.trigger.keys.is_empty());
     }
 
     #[test]

@@ -6,7 +6,9 @@
 # order: `kernel` (the kernel package, cached in target/kernel/<version>/), `add_module NAME`
 # for each module the guest loads (resolved with its dependencies through modules.dep, or an
 # out-of-tree .ko path) with `module_params NAME "..."` where needed, `build_example`, then
-# `boot "<shell lines run in the guest after the modules are loaded>"`, which exits 0 only when
+# `boot "<shell lines run in the guest after the modules are loaded>"` (before it, `add_binary`
+# puts another host program into the guest, and the runner may copy files under "$ird"), which
+# exits 0 only when
 # the guest printed `<SUITE>-RESULT: PASS` as often as `expect_passes` says (default 1) and
 # every `<SUITE>-EXIT ...: N` line has N = 0.
 # Environment: KERNEL_TEST_TIMEOUT (seconds, default 300), KERNEL_TEST_KEEP=1 keeps the work
@@ -116,21 +118,27 @@ build_example() {
     [ -x "$bin" ] || die "$bin was not built"
 }
 
+# A host program at guest path DEST, without its debug info (smaller initramfs, faster to pack
+# and boot), and every shared library it loads, at the path the loader looks for it.
+add_binary() { # SRC DEST
+    local src=$1 dest=$2 lib
+    mkdir -p "$ird$(dirname "$dest")"
+    if command -v objcopy >/dev/null; then
+        objcopy --strip-debug "$src" "$ird$dest"
+    else
+        cp "$src" "$ird$dest"
+    fi
+    for lib in $(ldd "$src" | grep -oE '/[^ ]+'); do
+        mkdir -p "$ird$(dirname "$lib")"
+        cp -L "$lib" "$ird$lib"
+    done
+}
+
 boot() {
     local body=$1
     cp "$busybox" "$ird/bin/busybox"
     ln -s busybox "$ird/bin/sh"
-    # The binary without its debug info (smaller initramfs, faster to pack and boot), and every
-    # shared library it loads, at the path the loader looks for it.
-    if command -v objcopy >/dev/null; then
-        objcopy --strip-debug "$bin" "$ird/$suite"
-    else
-        cp "$bin" "$ird/$suite"
-    fi
-    for lib in $(ldd "$bin" | grep -oE '/[^ ]+'); do
-        mkdir -p "$ird$(dirname "$lib")"
-        cp -L "$lib" "$ird$lib"
-    done
+    add_binary "$bin" "/$suite"
     local loads="" m
     for m in $insmods; do
         loads+="insmod /modules/$m ${params[$m]:-} || echo \"$SUITE-GUEST: insmod $m failed\""$'\n'

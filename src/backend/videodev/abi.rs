@@ -574,7 +574,7 @@ pub fn c_str(bytes: &[u8]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::fmt::Write as _;
     use std::mem::{offset_of, size_of};
@@ -852,7 +852,8 @@ mod tests {
 
     /// Compiles the assertions with `compiler` (no linking, no running: a cross compiler
     /// checks the target's layout without emulation). `Ok(false)` when it is not installed.
-    fn compile(compiler: &str, source: &std::path::Path) -> Result<bool, String> {
+    /// Also the input layer's check (`backend::input::abi`).
+    pub(crate) fn compile(compiler: &str, source: &std::path::Path) -> Result<bool, String> {
         let out = match Command::new(compiler)
             .args(["-std=gnu11", "-fsyntax-only", "-Werror"])
             .arg(source)

@@ -4,19 +4,9 @@
 
 use super::abi::{self, zeroed};
 use rustix::ioctl::{Opcode, Updater};
-use std::fs::OpenOptions;
 use std::io;
 use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd, RawFd};
-use std::os::unix::fs::{FileTypeExt, MetadataExt, OpenOptionsExt};
 use std::path::Path;
-
-/// The kernel class of a character device (`video4linux`, `media`, `mem`...), from sysfs; `None`
-/// where sysfs does not say (then the ioctls will).
-fn device_class(rdev: u64) -> Option<String> {
-    let (major, minor) = (libc::major(rdev), libc::minor(rdev));
-    let link = std::fs::read_link(format!("/sys/dev/char/{major}:{minor}/subsystem")).ok()?;
-    Some(link.file_name()?.to_string_lossy().into_owned())
-}
 
 /// A buffer queue's type: the single-planar or the multi-planar capture API. A node offers one
 /// of them (vivid either, by its `multiplanar` parameter; rkisp1 and camss only multi-planar).
@@ -87,33 +77,15 @@ const EINVAL: i32 = 22;
 const ENOTTY: i32 = 25;
 
 impl Device {
-    /// Opens `path` read-write and non-blocking (a dequeue waits with `poll`, with a timeout).
-    /// Opens a video, sub-device or media node. Anything else is refused before any ioctl: a
-    /// config or profile naming a regular file, a FIFO or another kind of device (`/dev/zero`)
-    /// gets an error saying what it names, not a confusing ioctl failure or a hang.
+    /// Opens `path` read-write and non-blocking (a dequeue waits with `poll`, with a timeout):
+    /// a video, sub-device or media node, and nothing else (`sys::open_device`).
     pub fn open(path: &Path) -> io::Result<Device> {
-        let file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .custom_flags(rustix::fs::OFlags::NONBLOCK.bits() as i32)
-            .open(path)?;
-        let meta = file.metadata()?;
-        if !meta.file_type().is_char_device() {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                "not a character device (a V4L2 video, sub-device or media node)",
-            ));
-        }
-        let class = device_class(meta.rdev());
-        if !matches!(class.as_deref(), Some("video4linux" | "media") | None) {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!(
-                    "a {} device, not a V4L2 video, sub-device or media node",
-                    class.unwrap_or_default()
-                ),
-            ));
-        }
+        let file = crate::backend::sys::open_device(
+            path,
+            true,
+            &["video4linux", "media"],
+            "a V4L2 video, sub-device or media node",
+        )?;
         Ok(Device { fd: file.into() })
     }
 
