@@ -321,8 +321,16 @@ fn report_alignment(al: &Alignment, files: &[PathBuf]) {
             .iter()
             .map(|e| format!("{:.3}", e.gain))
             .collect();
+        let local = match &reg.field[i] {
+            Some(f) => format!(
+                "local motion {:.1} px (99 %), {:.1} px (median)",
+                f.reach(0.99),
+                f.reach(0.5)
+            ),
+            None => "no local motion".to_string(),
+        };
         eprintln!(
-            "  align  frame {i:>3} {how}; gain {}  {}",
+            "  align  frame {i:>3} {how}; {local}; gain {}  {}",
             gains.join("/"),
             file.display()
         );

@@ -37,6 +37,11 @@ pub struct FuseSettings {
     #[arg(long = "memory", value_name = "MIB", default_value_t = FuseSettings::default().memory_mb,
           value_parser = MEMORY_MIB.parser())]
     pub memory_mb: u32,
+    /// Local registration (`--no-local-registration` turns it off): on top of each frame's
+    /// global affine, a dense displacement field for near objects that move against the
+    /// background by parallax in a hand-held sweep.
+    #[arg(long = "no-local-registration", action = clap::ArgAction::SetFalse)]
+    pub local_registration: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -56,6 +61,7 @@ impl Default for FuseSettings {
             quality: 92,
             crop: false,
             memory_mb: (DEFAULT_BUDGET >> 20) as u32,
+            local_registration: true,
         }
     }
 }
@@ -81,6 +87,9 @@ impl FuseSettings {
             ..FuseParams::default()
         };
         p.graphcut.lambda = self.lambda;
+        if let Some(a) = &mut p.align {
+            a.local = self.local_registration;
+        }
         p
     }
 }
@@ -119,9 +128,12 @@ mod tests {
             "--crop",
             "--memory",
             "100",
+            "--no-local-registration",
         ])
         .unwrap();
-        let text = "method = \"pyramid\"\nlambda = 2.5\nquality = 80\ncrop = true\nmemory_mb = 100";
+        let text =
+            "method = \"pyramid\"\nlambda = 2.5\nquality = 80\ncrop = true\nmemory_mb = 100\n\
+                    local_registration = false";
         assert_eq!(both, file(text));
         for (flag, key, bad) in [
             ("--lambda", "lambda", "10.5"),
@@ -152,5 +164,11 @@ mod tests {
             (2, 100 << 20, Method::Pyramid)
         );
         assert_eq!(p.graphcut.lambda, 1.5);
+        assert!(p.align.as_ref().is_some_and(|a| a.local));
+        let off = FuseSettings {
+            local_registration: false,
+            ..FuseSettings::default()
+        };
+        assert!(off.params(6).align.is_some_and(|a| !a.local));
     }
 }

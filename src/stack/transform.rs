@@ -103,6 +103,17 @@ impl OffsetField {
         let bottom = lerp(node(i, j + 1), node(i + 1, j + 1), fx);
         lerp(top, bottom, fy)
     }
+
+    /// The length of the offset that a share `q` (0..=1) of the nodes stay within, frame pixels:
+    /// how much local motion the field holds.
+    pub fn reach(&self, q: f64) -> f64 {
+        let mut m: Vec<f32> = self.offsets.iter().map(|o| o.0.hypot(o.1)).collect();
+        if m.is_empty() {
+            return 0.0;
+        }
+        let k = ((m.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+        *m.select_nth_unstable_by(k, f32::total_cmp).1 as f64
+    }
 }
 
 /// Where each reference pixel lies in a frame: the global affine plus, optionally, a smooth
@@ -194,6 +205,8 @@ mod tests {
         };
         assert_eq!(f.at(5.0, 5.0), (0.5, 1.0));
         assert_eq!(f.at(-3.0, 40.0), (0.0, 2.0));
+        assert_eq!(f.reach(0.0), 0.0);
+        assert!((f.reach(1.0) - 5f64.sqrt()).abs() < 1e-6);
         let w = Warp {
             affine: Affine([[1.0, 0.0, 3.0], [0.0, 1.0, 0.0]]),
             field: Some(f),

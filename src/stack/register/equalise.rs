@@ -74,7 +74,7 @@ pub fn choose(template: &Stack, frame: &[Plane]) -> Vec<(u8, u8)> {
 }
 
 /// Sum over the (2r+1)² window around each pixel, truncated at the borders.
-fn box_sum(p: &Plane, r: usize) -> Plane {
+pub(super) fn box_sum(p: &Plane, r: usize) -> Plane {
     let (w, h) = (p.width, p.height);
     // Along rows with a running sum, then down the columns a row at a time (contiguous).
     let mut rows = vec![0.0f32; w * h];

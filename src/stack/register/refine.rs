@@ -96,9 +96,6 @@ pub struct Refined {
     pub affine: Affine,
     /// Normalised cross-correlation of the aligned frame with the reference on the finest level.
     pub correlation: f64,
-    /// Photometric fit on the finest level: frame ≈ gain · reference + offset.
-    pub gain: f32,
-    pub offset: f32,
 }
 
 /// The state of the fit on one level: the warp in level pixels and the photometric correction
@@ -140,8 +137,6 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
     Refined {
         affine: fit.w,
         correlation: fit.correlation,
-        gain: fit.gain,
-        offset: fit.offset,
     }
 }
 

@@ -1,0 +1,414 @@
+//! Local registration: a dense displacement field on top of each frame's global affine, for what
+//! one affine cannot model, chiefly near objects moving against the background by parallax in a
+//! hand-held sweep (several pixels on a phone macro shot).
+//!
+//! A frame only contributes where it is sharp, and the reference is blurred exactly where the
+//! far frames are sharp, so a frame is not matched against the reference but against its
+//! neighbour towards it, which shares most of its blur; the fields are chained outwards from the
+//! reference. Each pair is matched by coarse-to-fine windowed Lucas–Kanade flow on high-passed
+//! planes (which drops exposure offsets and the low frequencies defocus changes most), on a
+//! reduced pyramid level, both frames first warped by their global affines. The window lets the
+//! field follow a near object rather than a smooth average over the frame; a ridge relative to
+//! the window's texture keeps the coarser level's estimate where there is no texture to measure.
+//!
+//! Neighbouring frames also differ by defocus, which a flow mistakes for motion of a fraction
+//! of a pixel; on a tripod stack that costs more than parallax gains. So each pair's flow is
+//! kept only where it removes a clear share of the residual ([`trust`]), displacements under
+//! half a pixel are dropped ([`DEAD`]), and a field whose displacements stay below
+//! [`MIN_MOTION_PX`] is dropped whole: on a stack without parallax the affine stands alone, and
+//! the output is what it was without local registration.
+//!
+//! Memory: the planes are the registration's own detection level; a side of the stack keeps one
+//! warped plane and one chained flow at a time; each field is 8 bytes per level pixel.
+
+use super::equalise::box_sum;
+use super::levels::to_level;
+use super::refine::Coords;
+use crate::stack::blur::gaussian_blur;
+use crate::stack::image::Plane;
+use crate::stack::pyramid::{expand, reduce};
+use crate::stack::transform::{Affine, OffsetField};
+use rayon::prelude::*;
+
+/// High-pass: each pyramid level minus its Gaussian blur of this σ (level pixels): keeps the
+/// texture that locates a shift, drops exposure offsets and the low frequencies defocus changes.
+const HIGH_PASS: f32 = 2.0;
+/// Half-width of the Lucas–Kanade window (level pixels), pooled by two box passes (a tent of
+/// σ ≈ 10): wide enough to see texture across most of a near object, so the flow is not led by
+/// noise; narrower windows (σ 3–6) wandered by half a pixel on parallax-free stacks.
+const WINDOW: usize = 12;
+/// Pyramid levels of the flow below the working level: each handles about a pixel of motion, so
+/// two reach 4 working-level pixels (16 full-resolution pixels at level 2).
+const LEVELS: usize = 2;
+/// Lucas–Kanade iterations per level.
+const ITERATIONS: usize = 8;
+/// Ridge on the increment, relative to the mean gradient energy of the pair: a window with the
+/// average texture moves a quarter as far as its data says per step, one with little hardly
+/// at all.
+const RIDGE: f32 = 3.0;
+/// The flow must remove at least this share of the windowed residual to be trusted at all, and
+/// twice it to be trusted fully (see [`trust`]).
+const EXPLAINED: f32 = 0.25;
+/// Local displacements up to `DEAD.0` full-resolution pixels are dropped and those beyond
+/// `DEAD.1` kept whole (a ramp between): blur differences between neighbours fake motion of
+/// a fraction of a pixel, and on a tripod stack even 0.5 px of it cost 1.6 dB.
+const DEAD: (f32, f32) = (0.5, 1.0);
+/// A field whose 99th percentile displacement (full-resolution pixels) is below this is
+/// dropped: the affine stands alone, and the output is what it was without local registration.
+const MIN_MOTION_PX: f64 = 0.3;
+
+/// A displacement per pixel of a working-level grid, in working-level pixels: reference content
+/// at (x, y) appears at (x + dx, y + dy) in the frame warped by its global affine.
+#[derive(Clone)]
+struct Flow {
+    width: usize,
+    height: usize,
+    dx: Vec<f32>,
+    dy: Vec<f32>,
+}
+
+impl Flow {
+    fn zero(width: usize, height: usize) -> Flow {
+        Flow {
+            width,
+            height,
+            dx: vec![0.0; width * height],
+            dy: vec![0.0; width * height],
+        }
+    }
+
+    /// Bilinear sample at (x, y), clamped to the grid.
+    fn at(&self, x: f32, y: f32) -> (f32, f32) {
+        let (w, h) = (self.width, self.height);
+        let x = x.clamp(0.0, (w - 1) as f32);
+        let y = y.clamp(0.0, (h - 1) as f32);
+        let (x0, y0) = (
+            (x as usize).min(w.saturating_sub(2)),
+            (y as usize).min(h.saturating_sub(2)),
+        );
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let s = |v: &[f32]| {
+            let top = v[y0 * w + x0] * (1.0 - fx) + v[y0 * w + x1] * fx;
+            let bot = v[y1 * w + x0] * (1.0 - fx) + v[y1 * w + x1] * fx;
+            top * (1.0 - fy) + bot * fy
+        };
+        (s(&self.dx), s(&self.dy))
+    }
+
+    /// `self` followed by `next`: where reference content lands in frame j (`self`), then where
+    /// frame j's content lands in frame i (`next`).
+    fn chain(&self, next: &Flow) -> Flow {
+        let w = self.width;
+        let (dx, dy): (Vec<f32>, Vec<f32>) = (0..w * self.height)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let (ax, ay) = (self.dx[i], self.dy[i]);
+                let (bx, by) = next.at(x + ax, y + ay);
+                (ax + bx, ay + by)
+            })
+            .unzip();
+        Flow { dx, dy, ..*self }
+    }
+
+    /// Twice the size and the displacement: the next finer level's start.
+    fn expand_to(&self, w: usize, h: usize) -> Flow {
+        let up = |v: &[f32]| {
+            let p = Plane::from_vec(self.width, self.height, 1, v.to_vec());
+            let mut e = expand(&p, w, h).data;
+            e.iter_mut().for_each(|v| *v *= 2.0);
+            e
+        };
+        Flow {
+            width: w,
+            height: h,
+            dx: up(&self.dx),
+            dy: up(&self.dy),
+        }
+    }
+}
+
+/// A frame's level plane warped onto the reference's grid by its affine (level coordinates);
+/// NaN outside the frame.
+pub struct Warped(Plane);
+
+impl Warped {
+    /// `plane` is the frame at pyramid level `k`, `ref_to_frame` its full-resolution affine.
+    pub fn new(plane: &Plane, ref_to_frame: &Affine, k: usize) -> Warped {
+        let a = to_level(ref_to_frame, k);
+        let (w, h) = (plane.width, plane.height);
+        let cs = Coords::mapped(w, h, plane, |x, y| a.apply(x, y));
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| cs.sample(plane, i).unwrap_or(f32::NAN))
+            .collect();
+        Warped(Plane::from_vec(w, h, 1, data))
+    }
+}
+
+/// Where `p` is defined (1, else 0), and `p` with NaN (outside the frame) as 0: filtered
+/// alike, their ratio is the filter of the defined pixels alone.
+fn masked(p: &Plane) -> (Plane, Plane) {
+    let plane = |f: &dyn Fn(f32) -> f32| {
+        let data = p.data.iter().map(|&v| if v.is_nan() { 0.0 } else { f(v) });
+        Plane::from_vec(p.width, p.height, 1, data.collect())
+    };
+    (plane(&|_| 1.0), plane(&|v| v))
+}
+
+/// `p` minus its blur; NaN (outside the frame) stays NaN and does not leak into the blur.
+fn high_pass(p: &Plane) -> Plane {
+    let (valid, filled) = masked(p);
+    let (bv, bf) = (
+        gaussian_blur(&valid, HIGH_PASS),
+        gaussian_blur(&filled, HIGH_PASS),
+    );
+    let data = p
+        .data
+        .iter()
+        .zip(bv.data.iter().zip(&bf.data))
+        .map(|(v, (n, s))| if *n > 1e-3 { v - s / n } else { f32::NAN })
+        .collect();
+    Plane::from_vec(p.width, p.height, 1, data)
+}
+
+/// The chain of local fields of one side of the reference: call [`Chain::next`] with each frame
+/// in order outwards from the reference; only the last frame's plane and flow are kept.
+pub struct Chain {
+    prev: Warped,
+    flow: Flow,
+    /// Pyramid level the planes are at.
+    level: usize,
+}
+
+impl Chain {
+    /// Starts at the reference's level plane (high-passed, not warped).
+    pub fn new(reference: &Plane, level: usize) -> Chain {
+        Chain {
+            prev: Warped::new(reference, &Affine::IDENTITY, 0),
+            flow: Flow::zero(reference.width, reference.height),
+            level,
+        }
+    }
+
+    /// The offset field of the next frame outwards (`ref_to_frame` its global affine, full
+    /// resolution), or None where it stays within [`MIN_MOTION_PX`] of the affine.
+    pub fn next(&mut self, frame: Warped, ref_to_frame: &Affine) -> Option<OffsetField> {
+        let d = flow(&self.prev.0, &frame.0);
+        self.flow = self.flow.chain(&d);
+        self.prev = frame;
+        let s = (1u64 << self.level) as f32;
+        // Frame point = A(x + g) = A(x) + L·g for the affine's linear part L.
+        let [[l00, l01, _], [l10, l11, _]] = ref_to_frame.0;
+        let (l00, l01, l10, l11) = (l00 as f32, l01 as f32, l10 as f32, l11 as f32);
+        let offsets = self
+            .flow
+            .dx
+            .iter()
+            .zip(&self.flow.dy)
+            .map(|(&x, &y)| {
+                let (x, y) = (s * x, s * y);
+                let k = ((x.hypot(y) - DEAD.0) / (DEAD.1 - DEAD.0)).clamp(0.0, 1.0);
+                let (x, y) = (k * x, k * y);
+                (l00 * x + l01 * y, l10 * x + l11 * y)
+            })
+            .collect();
+        let field = OffsetField {
+            step: s as f64,
+            cols: self.flow.width,
+            rows: self.flow.height,
+            offsets,
+        };
+        (field.reach(0.99) >= MIN_MOTION_PX).then_some(field)
+    }
+}
+
+/// Coarse-to-fine windowed Lucas–Kanade flow taking `a`'s content to where it shows in `b`.
+fn flow(a: &Plane, b: &Plane) -> Flow {
+    let mut pa = vec![a.clone()];
+    let mut pb = vec![b.clone()];
+    for _ in 0..LEVELS {
+        let (la, lb) = (pa.last().expect("level"), pb.last().expect("level"));
+        if la.width.min(la.height) < 32 {
+            break;
+        }
+        let (ra, rb) = (reduce_nan(la), reduce_nan(lb));
+        pa.push(ra);
+        pb.push(rb);
+    }
+    let (pa, pb): (Vec<Plane>, Vec<Plane>) = pa
+        .iter()
+        .zip(&pb)
+        .map(|(a, b)| (high_pass(a), high_pass(b)))
+        .unzip();
+    let top = pa.len() - 1;
+    let mut f = Flow::zero(pa[top].width, pa[top].height);
+    for k in (0..=top).rev() {
+        if k < top {
+            f = f.expand_to(pa[k].width, pa[k].height);
+        }
+        for _ in 0..ITERATIONS {
+            lucas_kanade_step(&pa[k], &pb[k], &mut f);
+        }
+    }
+    trust(&pa[0], &pb[0], &mut f);
+    f
+}
+
+/// Keeps the flow only where it explains the pair clearly better than no local motion: the
+/// windowed squared residual through the flow against that through the affine alone. Where
+/// neighbouring frames differ by defocus, noise or occlusion rather than motion, a flow fitted
+/// to them only wanders; there the affine stands.
+fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
+    let (w, h) = (a.width, a.height);
+    let sq = |moved: bool| {
+        let data: Vec<f32> = (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                let v = if moved {
+                    bilinear(b, x + f.dx[i], y + f.dy[i])
+                } else {
+                    b.data[i]
+                };
+                let e = v - a.data[i];
+                if e.is_nan() {
+                    0.0
+                } else {
+                    e * e
+                }
+            })
+            .collect();
+        pool(&Plane::from_vec(w, h, 1, data))
+    };
+    let (still, moved) = (sq(false), sq(true));
+    let gain = EXPLAINED;
+    f.dx.par_iter_mut()
+        .zip(f.dy.par_iter_mut())
+        .zip(still.data.par_iter().zip(&moved.data))
+        .for_each(|((dx, dy), (e0, e1))| {
+            // Share of the residual the flow removes, mapped to a weight 0..1.
+            let removed = if *e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
+            let k = ((removed - gain) / gain).clamp(0.0, 1.0);
+            *dx *= k;
+            *dy *= k;
+        });
+}
+
+/// `reduce` with NaN (outside the frame) kept out: outside pixels count as 0 and any output
+/// pixel they touch much becomes NaN.
+fn reduce_nan(p: &Plane) -> Plane {
+    let (valid, filled) = masked(p);
+    let (rv, rf) = (reduce(&valid), reduce(&filled));
+    let data = rv
+        .data
+        .iter()
+        .zip(&rf.data)
+        .map(|(n, s)| if *n > 0.9 { s / n } else { f32::NAN })
+        .collect();
+    Plane::from_vec(rv.width, rv.height, 1, data)
+}
+
+/// One Gauss–Newton step of the windowed flow: `b` sampled through `f`, the normal equations of
+/// each pixel's increment pooled over a Gaussian window and solved with a ridge.
+fn lucas_kanade_step(a: &Plane, b: &Plane, f: &mut Flow) {
+    let (w, h) = (a.width, a.height);
+    let bw: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (x, y) = ((i % w) as f32 + f.dx[i], (i / w) as f32 + f.dy[i]);
+            bilinear(b, x, y)
+        })
+        .collect();
+    // Per pixel: gx², gx·gy, gy², gx·e, gy·e with the mean gradient of both images.
+    let mut prods: Vec<Vec<f32>> = vec![vec![0.0; w * h]; 5];
+    let grad = |p: &[f32], i: usize, step: usize, lo: bool, hi: bool| -> f32 {
+        if lo || hi {
+            return f32::NAN;
+        }
+        0.5 * (p[i + step] - p[i - step])
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let (ex, ey) = (x == 0 || x + 1 == w, y == 0 || y + 1 == h);
+            let gx = 0.5 * (grad(&a.data, i, 1, ex, false) + grad(&bw, i, 1, ex, false));
+            let gy = 0.5 * (grad(&a.data, i, w, ey, false) + grad(&bw, i, w, ey, false));
+            let e = bw[i] - a.data[i];
+            if gx.is_nan() || gy.is_nan() || e.is_nan() {
+                continue;
+            }
+            let v = [gx * gx, gx * gy, gy * gy, gx * e, gy * e];
+            for (p, v) in prods.iter_mut().zip(v) {
+                p[i] = v;
+            }
+        }
+    }
+    let pooled: Vec<Plane> = prods
+        .into_par_iter()
+        .map(|p| pool(&Plane::from_vec(w, h, 1, p)))
+        .collect();
+    let energy = pooled[0].data.iter().chain(&pooled[2].data).sum::<f32>() / (2 * w * h) as f32;
+    let ridge = RIDGE * energy + 1e-12;
+    let [xx, xy, yy, xe, ye] = [0, 1, 2, 3, 4].map(|k| &pooled[k].data);
+    f.dx.par_iter_mut()
+        .zip(f.dy.par_iter_mut())
+        .enumerate()
+        .for_each(|(i, (dx, dy))| {
+            let (a, b, c) = (xx[i] + ridge, xy[i], yy[i] + ridge);
+            let det = a * c - b * b;
+            if det <= 0.0 {
+                return;
+            }
+            let (rx, ry) = (-xe[i], -ye[i]);
+            *dx += (c * rx - b * ry) / det;
+            *dy += (a * ry - b * rx) / det;
+        });
+}
+
+/// Bilinear sample, NaN outside or where a tap is NaN.
+fn bilinear(p: &Plane, x: f32, y: f32) -> f32 {
+    if !(x >= 0.0 && y >= 0.0 && x <= (p.width - 1) as f32 && y <= (p.height - 1) as f32) {
+        return f32::NAN;
+    }
+    let (x0, y0) = (x as usize, y as usize);
+    let (x1, y1) = ((x0 + 1).min(p.width - 1), (y0 + 1).min(p.height - 1));
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let d = &p.data;
+    let w = p.width;
+    let top = d[y0 * w + x0] * (1.0 - fx) + d[y0 * w + x1] * fx;
+    let bot = d[y1 * w + x0] * (1.0 - fx) + d[y1 * w + x1] * fx;
+    top * (1.0 - fy) + bot * fy
+}
+
+/// Sum over the window: two box passes, a tent close to a Gaussian, at a cost that does not
+/// grow with its size.
+fn pool(p: &Plane) -> Plane {
+    box_sum(&box_sum(p, WINDOW), WINDOW)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tex(x: f64, y: f64) -> f32 {
+        (0.5 + 0.2 * (x * 0.37).sin() * (y * 0.29).cos() + 0.1 * (x * 0.11 + y * 0.13).sin()) as f32
+    }
+
+    #[test]
+    fn flow_recovers_a_shift_and_stays_still_without_one() {
+        let a = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64, y as f64));
+        let b = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64 - 1.3, y as f64 + 0.6));
+        let f = flow(&a, &b);
+        for i in [60 * 160 + 80, 30 * 160 + 40, 90 * 160 + 120] {
+            assert!(
+                (f.dx[i] - 1.3).abs() < 0.05 && (f.dy[i] + 0.6).abs() < 0.05,
+                "{} {}",
+                f.dx[i],
+                f.dy[i]
+            );
+        }
+        let still = flow(&a, &a);
+        assert!(still.dx.iter().chain(&still.dy).all(|d| d.abs() < 1e-3));
+    }
+}
