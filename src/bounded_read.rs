@@ -9,7 +9,7 @@
 //! may grow in between.
 
 use std::fs::{File, FileType, OpenOptions};
-use std::io::{self, Read};
+use std::io::{self, Read, Take};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::Path;
 
@@ -57,18 +57,32 @@ fn too_big(len: u64, cap: u64) -> io::Error {
     )
 }
 
-/// Reads at most `cap` bytes of a regular file; a longer file is refused, not cut.
-pub fn read(path: &Path, cap: u64) -> io::Result<Vec<u8>> {
+/// Opens a regular file to be streamed with at most `cap` bytes: a longer file is refused
+/// before reading, and the reader stops one byte past the cap, so that a file that grew since
+/// is caught by [`check_cap`] once read, not cut.
+pub fn open_capped(path: &Path, cap: u64) -> io::Result<Take<File>> {
     let f = open(path)?;
     let len = f.metadata()?.len();
     if len > cap {
         return Err(too_big(len, cap));
     }
-    let mut buf = Vec::with_capacity(len as usize);
-    f.take(cap + 1).read_to_end(&mut buf)?;
-    if buf.len() as u64 > cap {
-        return Err(too_big(buf.len() as u64, cap));
+    Ok(f.take(cap + 1))
+}
+
+/// After reading an [`open_capped`] file: refuses it if it gave more than its cap.
+pub fn check_cap(r: &Take<File>, cap: u64) -> io::Result<()> {
+    match r.limit() {
+        0 => Err(too_big(cap + 1, cap)),
+        _ => Ok(()),
     }
+}
+
+/// Reads at most `cap` bytes of a regular file; a longer file is refused, not cut.
+pub fn read(path: &Path, cap: u64) -> io::Result<Vec<u8>> {
+    let mut r = open_capped(path, cap)?;
+    let mut buf = Vec::with_capacity(r.get_ref().metadata()?.len() as usize);
+    r.read_to_end(&mut buf)?;
+    check_cap(&r, cap)?;
     Ok(buf)
 }
 

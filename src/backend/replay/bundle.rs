@@ -206,24 +206,11 @@ fn inside(root: &Path, path: &Path) -> Result<PathBuf, BundleError> {
 }
 
 fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
+    use crate::bounded_read::{check_cap, open_capped};
     let cannot = |e: std::io::Error| err(path, format!("cannot read: {e}"));
-    let f = crate::bounded_read::open(path).map_err(cannot)?;
-    let len = f.metadata().map_err(cannot)?.len();
-    if len > MAX_CSV_BYTES {
-        return Err(err(
-            path,
-            format!("{len} bytes, over the {MAX_CSV_BYTES}-byte limit"),
-        ));
-    }
-    // One byte over the cap is read so that a file grown since the check is caught, not cut.
-    let mut r = std::io::BufReader::new(f.take(MAX_CSV_BYTES + 1));
+    let mut r = std::io::BufReader::new(open_capped(path, MAX_CSV_BYTES).map_err(cannot)?);
     let samples = parse_imu(&mut r).map_err(|r| err(path, r))?;
-    if r.into_inner().limit() == 0 {
-        return Err(err(
-            path,
-            format!("grew over the {MAX_CSV_BYTES}-byte limit while read"),
-        ));
-    }
+    check_cap(r.get_ref(), MAX_CSV_BYTES).map_err(cannot)?;
     Ok(samples)
 }
 
