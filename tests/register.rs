@@ -8,10 +8,14 @@ use focusd::stack::fuse::fuse;
 use focusd::stack::image::Plane;
 use focusd::stack::metrics::psnr;
 use focusd::stack::params::FuseParams;
-use focusd::stack::register::{register, Placement, RegisterError, RegisterParams, Registration};
+use focusd::stack::register::{
+    register, register_with, Placement, RegisterError, RegisterParams, Registration,
+};
 use focusd::stack::transform::{Affine, Transforms, Warp};
-use focusd::stack::NoProgress;
+use focusd::stack::{NoProgress, Progress, Stage};
+use std::borrow::Cow;
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 fn load_luma(path: &Path) -> Plane {
     match load(path).unwrap() {
@@ -161,6 +165,56 @@ fn bad_arguments_are_errors() {
         register(&[a, b], 0, &p),
         Err(RegisterError::Size { frame: 1, .. })
     ));
+}
+
+/// Counts the steps reported and cancels after `cancel_after` of them.
+struct Steps {
+    stages: std::sync::Mutex<Vec<(Stage, usize)>>,
+    done: AtomicUsize,
+    cancel_after: usize,
+}
+
+impl Progress for Steps {
+    fn stage(&self, stage: Stage, total: usize) {
+        self.stages.lock().unwrap().push((stage, total));
+    }
+    fn advance(&self, steps: usize) {
+        self.done.fetch_add(steps, Ordering::SeqCst);
+    }
+    fn cancelled(&self) -> bool {
+        self.done.load(Ordering::SeqCst) >= self.cancel_after
+    }
+}
+
+#[test]
+fn registration_reports_each_frame_of_each_phase_and_stops_when_cancelled() {
+    let (lumas, t) = handheld();
+    let (n, size) = (lumas.len(), (t.size[0], t.size[1]));
+    let luma = |i: usize| Cow::Borrowed(&lumas[i]);
+    let p = RegisterParams::default();
+    assert!(p.local && p.refine_levels > 0);
+    let all = Steps {
+        stages: Default::default(),
+        done: AtomicUsize::new(0),
+        cancel_after: usize::MAX,
+    };
+    register_with(n, size, luma, t.reference, &p, 0, &all).unwrap();
+    // Prepare, match, refine and the local field; the reference's local step is not one.
+    let steps = all.done.load(Ordering::SeqCst);
+    assert_eq!(
+        *all.stages.lock().unwrap(),
+        vec![(Stage::Register, 4 * n - 1)]
+    );
+    assert_eq!(steps, 4 * n - 1);
+    let cancelled = Steps {
+        stages: Default::default(),
+        done: AtomicUsize::new(0),
+        cancel_after: 2 * n,
+    };
+    let err = register_with(n, size, luma, t.reference, &p, 0, &cancelled).unwrap_err();
+    assert_eq!(err, RegisterError::Cancelled);
+    // Stopped at the first check after the cancel; parallel steps already started may finish.
+    assert!(cancelled.done.load(Ordering::SeqCst) < 3 * n);
 }
 
 /// Per frame but the reference: the RMS distance (px) between where the registration and the

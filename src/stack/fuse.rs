@@ -118,18 +118,22 @@ pub fn fuse<T: Sample>(
     let plan = memory::plan(&stack_of(&frames), params);
     let alignment = match &params.align {
         Some(p) => {
-            progress.stage(Stage::Register, 1);
             let size = (frames[0].width, frames[0].height);
             let luma = |i: usize| Cow::Owned(frames[i].luma());
+            let n = frames.len();
             let registration = register_with(
-                frames.len(),
+                n,
                 size,
                 luma,
                 reference,
                 p,
                 plan.concurrent_frames,
-            )?;
-            progress.advance(1);
+                progress,
+            )
+            .map_err(|e| match e {
+                RegisterError::Cancelled => FuseError::Cancelled,
+                e => FuseError::Register(e),
+            })?;
             lap(Stage::Register, &mut timings);
             go_on(progress)?;
             let a = align(&mut frames, registration, reference, progress);

@@ -28,6 +28,7 @@ mod refine;
 
 use super::image::Plane;
 use super::transform::{Affine, OffsetField};
+use super::{NoProgress, Progress, Stage};
 use levels::{level_within, Levels};
 use matching::Features;
 use ransac::{Fit, Pair};
@@ -163,6 +164,8 @@ pub enum RegisterError {
         inliers: usize,
         needed: usize,
     },
+    #[error("cancelled")]
+    Cancelled,
 }
 
 /// One frame ready to match and refine.
@@ -185,6 +188,7 @@ pub fn register(
         reference,
         p,
         0,
+        &NoProgress,
     )
 }
 
@@ -193,6 +197,10 @@ pub fn register(
 /// all in memory (10 × 3 MP: 120 MB). `concurrent_frames` frames are prepared at once, each
 /// with its full-resolution luma in memory (4 bytes a pixel); 0: one per thread. A memory
 /// budget lowers it (see `stack::memory`).
+///
+/// Reports one step per frame and phase (prepare, match, refine, local field) as stage
+/// `Register`, and stops between steps when `progress` is cancelled: on a slow core a stack's
+/// registration takes long enough that a watchdog must see it move and a cancel must not wait.
 pub fn register_with<'a>(
     n: usize,
     size: (usize, usize),
@@ -200,6 +208,7 @@ pub fn register_with<'a>(
     reference: usize,
     p: &RegisterParams,
     concurrent_frames: usize,
+    progress: &dyn Progress,
 ) -> Result<Registration, RegisterError> {
     if reference >= n {
         return Err(match n {
@@ -236,11 +245,21 @@ pub fn register_with<'a>(
         let features = features(levels.get(det.min(levels.last())), det, p);
         Ok(Prepared { levels, features })
     };
+    // Every phase takes each frame once, but the local fields skip the reference.
+    let phases = 2 + usize::from(p.refine_levels > 0) + usize::from(p.local);
+    progress.stage(Stage::Register, phases * n - usize::from(p.local));
+    let step = || {
+        progress.advance(1);
+        match progress.cancelled() {
+            true => Err(RegisterError::Cancelled),
+            false => Ok(()),
+        }
+    };
     let mut frames: Vec<Prepared> = Vec::with_capacity(n);
     for start in (0..n).step_by(at_once) {
         let prepared: Vec<Prepared> = (start..(start + at_once).min(n))
             .into_par_iter()
-            .map(prepare)
+            .map(|i| prepare(i).and_then(|f| step().map(|()| f)))
             .collect::<Result<_, _>>()?;
         frames.extend(prepared);
     }
@@ -252,8 +271,11 @@ pub fn register_with<'a>(
     };
     let direct: Vec<Option<Fit>> = (0..n)
         .into_par_iter()
-        .map(|i| (i != reference).then(|| m.fit(reference, i)).flatten())
-        .collect();
+        .map(|i| {
+            let fit = (i != reference).then(|| m.fit(reference, i)).flatten();
+            step().map(|()| fit)
+        })
+        .collect::<Result<_, _>>()?;
     let mut reg = Registration {
         ref_to_frame: vec![Affine::IDENTITY; n],
         how: vec![Placement::Reference; n],
@@ -274,12 +296,13 @@ pub fn register_with<'a>(
             .into_par_iter()
             .map(|i| {
                 let matched = matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
-                matched.then(|| {
+                let r = matched.then(|| {
                     let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
                     refine::refine(&tpl, levels, init, p.refine_iterations)
-                })
+                });
+                step().map(|()| r)
             })
-            .collect();
+            .collect::<Result<_, _>>()?;
         for (i, r) in refined.into_iter().enumerate() {
             if let Some(r) = r {
                 reg.ref_to_frame[i] = r.affine;
@@ -303,17 +326,21 @@ pub fn register_with<'a>(
             .map(|side| {
                 let k = near.min(frames[reference].levels.last());
                 let mut chain = local::Chain::new(plane(reference), k);
-                side.into_iter()
-                    .take_while(|&i| {
-                        matches!(reg.how[i], Placement::Direct | Placement::Chained { .. })
-                    })
-                    .map(|i| {
-                        let a = &reg.ref_to_frame[i];
-                        (i, chain.next(local::Warped::new(plane(i), a, k), a))
-                    })
-                    .collect()
+                // The chain ends at the first frame placed without a match of its own.
+                let mut matched = true;
+                let mut fields = Vec::with_capacity(side.len());
+                for i in side {
+                    matched &= matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
+                    let a = &reg.ref_to_frame[i];
+                    let field = matched
+                        .then(|| chain.next(local::Warped::new(plane(i), a, k), a))
+                        .flatten();
+                    step()?;
+                    fields.push((i, field));
+                }
+                Ok(fields)
             })
-            .collect();
+            .collect::<Result<_, _>>()?;
         for (i, f) in fields.into_iter().flatten() {
             reg.field[i] = f;
         }
