@@ -5,14 +5,27 @@
 //!
 //! Both are optional: a phone without feedbackd or a notification daemon still captures, and a
 //! call that fails is logged once, not retried. Both live on the session bus: the system service
-//! has none to call. The calls go out from the event task, each in its own task, so a slow or
-//! absent service never delays a signal.
+//! has none to call. The calls go out in the order of the moments that caused them (a capture
+//! that fails at once must not buzz "failed" before "hold still"), one after another from a
+//! task of their own, so a slow or absent service never delays a signal; a call gets
+//! [`CALL_TIMEOUT`] before the next one goes.
 
 use crate::capture::Stage;
 use std::collections::HashMap;
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::mpsc;
 use zbus::Variant;
+
+/// How long one call may hold up the calls queued after it: feedbackd and notification daemons
+/// answer in milliseconds; one that hangs must not keep the next capture's feedback back.
+const CALL_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// A queued call to a session service.
+type Call = Pin<Box<dyn Future<Output = ()> + Send>>;
 
 /// The app id feedbackd keys per-application settings on, and the notification's desktop entry:
 /// the launcher is `org.focusd.Focusd.desktop`.
@@ -75,7 +88,8 @@ impl Moments {
 /// The session services a job's moments and results go to.
 #[derive(Clone)]
 pub struct Desk {
-    conn: Option<zbus::Connection>,
+    /// The session bus and the queue of calls to it.
+    session: Option<(zbus::Connection, mpsc::UnboundedSender<Call>)>,
     /// Logged once each: an absent service is normal.
     feedback_missing: Arc<AtomicBool>,
     notifications_missing: Arc<AtomicBool>,
@@ -90,8 +104,17 @@ impl Desk {
                  the notification daemon are session services)"
             );
         }
+        let session = session.map(|conn| {
+            let (tx, mut rx) = mpsc::unbounded_channel::<Call>();
+            tokio::spawn(async move {
+                while let Some(call) = rx.recv().await {
+                    call.await;
+                }
+            });
+            (conn, tx)
+        });
         Desk {
-            conn: session,
+            session,
             feedback_missing: Arc::default(),
             notifications_missing: Arc::default(),
         }
@@ -137,8 +160,8 @@ impl Desk {
         );
     }
 
-    /// Calls `method` of a session service (its interface named as the service, at the object
-    /// path its name spells) in a task of its own; a failure is logged the first time only.
+    /// Queues a call of `method` of a session service (its interface named as the service, at
+    /// the object path its name spells); a failure is logged the first time only.
     fn call<B>(
         &self,
         service: &'static str,
@@ -149,21 +172,24 @@ impl Desk {
     ) where
         B: serde::Serialize + zbus::zvariant::DynamicType + Send + Sync + 'static,
     {
-        let Some(conn) = self.conn.clone() else {
+        let Some((conn, queue)) = &self.session else {
             return;
         };
-        let missing = missing.clone();
-        tokio::spawn(async move {
+        let (conn, missing) = (conn.clone(), missing.clone());
+        let call = async move {
             let path = format!("/{}", service.replace('.', "/"));
-            let r = conn
-                .call_method(Some(service), path.as_str(), Some(service), method, &body)
-                .await;
-            if let Err(e) = r {
-                if !missing.swap(true, Ordering::Relaxed) {
-                    tracing::info!("no {what} ({service}: {e})");
-                }
+            let call = conn.call_method(Some(service), path.as_str(), Some(service), method, &body);
+            let error = match tokio::time::timeout(CALL_TIMEOUT, call).await {
+                Ok(Ok(_)) => return,
+                Ok(Err(e)) => e.to_string(),
+                Err(_) => format!("no answer in {} s", CALL_TIMEOUT.as_secs()),
+            };
+            if !missing.swap(true, Ordering::Relaxed) {
+                tracing::info!("no {what} ({service}: {error})");
             }
-        });
+        };
+        // The queue's task ends only with the runtime; a call queued after that is moot.
+        let _ = queue.send(Box::pin(call));
     }
 }
 
