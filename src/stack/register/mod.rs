@@ -42,9 +42,14 @@ pub struct RegisterParams {
     /// Keypoints are found on the largest pyramid level with at most this many pixels: finer
     /// levels add time, not matches, since most of every frame is defocused anyway.
     pub detect_pixels: usize,
-    /// The dense refinement stops at the largest level with at most this many pixels: its
-    /// precision there is a small fraction of a pixel, below the defocus bias that remains
-    /// (3 MP frames: 49k rather than 197k pixels cost 0.015 px mean corner error, ¼ the time).
+    /// The dense refinement stops at the largest level with at most this many pixels, and at
+    /// half size at the finest. Finer is
+    /// more precise until the defocus equalisation's blurs no longer span the stack's defocus:
+    /// on 1600×1200 layered linear-light tripod stacks the mean corner error is 0.37 px at level
+    /// 3 (30k pixels), 0.22 at level 2, 0.17 at level 1 (480k) and 0.23 at full size, and the
+    /// fused PSNR 30.4, 32.4 and 32.6 dB on level 3, 2 and 1 (for 0.7 s more than level 3 on 8
+    /// frames): sub-pixel misregistration, not labelling, was most of what separated the output
+    /// from the truth away from depth steps.
     pub refine_pixels: usize,
     /// Pyramid levels the dense refinement visits, coarse to fine; 0 keeps the keypoint affine.
     pub refine_levels: usize,
@@ -86,7 +91,7 @@ impl Default for RegisterParams {
     fn default() -> Self {
         Self {
             detect_pixels: 400_000,
-            refine_pixels: 100_000,
+            refine_pixels: 500_000,
             refine_levels: 4,
             refine_iterations: 10,
             local: true,
@@ -221,7 +226,10 @@ pub fn register_with<'a>(
     }
     let (w, h) = size;
     let det = level_within(w, h, p.detect_pixels);
-    let fine = level_within(w, h, p.refine_pixels);
+    // Never full size: the defocus equalisation's blurs (up to 5.7 level pixels) fall short of
+    // a stack's defocus there (640×480 hand-held: 0.20 px mean corner error at full size, 0.16
+    // at half size).
+    let fine = level_within(w, h, p.refine_pixels).max(1);
     let coarse = fine + p.refine_levels.max(1) - 1;
     let near = level_within(w, h, p.local_pixels);
     let first = det.min(fine).min(if p.local { near } else { det });

@@ -3,8 +3,8 @@
 //! Keypoints alone leave ~0.5–1 px of error on defocused frames (few, blurred blobs); the dense
 //! fit uses every textured pixel. It is inverse compositional (the reference is the template, so
 //! its gradients are computed once and shared by all frames) with a gain and an offset (frames
-//! differ in exposure), coarse to fine. On the finest level the two images are first equalised
-//! in defocus ([`super::equalise`]); a Huber weight limits the pull of whatever still disagrees
+//! differ in exposure), coarse to fine. On the finest level the two images are equalised in
+//! defocus ([`super::equalise`]) and compared only so; a Huber weight limits the pull of whatever still disagrees
 //! (occlusion edges, parallax of near objects).
 
 use super::equalise::{self, Stack};
@@ -17,8 +17,6 @@ use rayon::prelude::*;
 const N: usize = 8;
 /// Huber threshold in robust standard deviations of the residual.
 const HUBER: f32 = 1.5;
-/// Equalise-then-fit rounds on the finest level: the second judges defocus on a better fit.
-const EQUALISE_ROUNDS: usize = 2;
 
 /// A template image with its gradients (central differences, zero on the border).
 pub(super) struct View {
@@ -119,18 +117,20 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
     for (i, view) in tpl.levels.iter().enumerate().rev() {
         let k = tpl.first + i;
         fit.w = to_level(&fit.w, k);
-        let img = std::slice::from_ref(frame.get(k));
-        iterate(view, img, None, &mut fit, iterations);
-        if i == 0 {
+        if i > 0 {
+            let img = std::slice::from_ref(frame.get(k));
+            iterate(view, img, None, &mut fit, iterations);
+        } else {
+            // Only equalised: the coarser levels' fit is close enough to judge defocus on, and a
+            // plain pass here, or a second round, cost 35 % more time for 0.01 px less error
+            // (1600×1200 layered stacks, linear light).
             let stack = Stack::new(frame.get(k));
-            for _ in 0..EQUALISE_ROUNDS {
-                let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0]);
-                let warped = warp_stack(&stack, &cs, fit.gain, fit.offset);
-                let pick = equalise::choose(&tpl.stack, &warped);
-                let eq = View::select(&tpl.stack_views, &pick);
-                let frame_layer: Vec<u8> = pick.iter().map(|p| p.1).collect();
-                iterate(&eq, &stack.layers, Some(&frame_layer), &mut fit, iterations);
-            }
+            let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0]);
+            let warped = warp_stack(&stack, &cs, fit.gain, fit.offset);
+            let pick = equalise::choose(&tpl.stack, &warped);
+            let eq = View::select(&tpl.stack_views, &pick);
+            let frame_layer: Vec<u8> = pick.iter().map(|p| p.1).collect();
+            iterate(&eq, &stack.layers, Some(&frame_layer), &mut fit, iterations);
         }
         fit.w = from_level(&fit.w, k);
     }
