@@ -47,14 +47,33 @@ fn errors(reg: &Registration, truth: &[Affine], w: usize, h: usize) -> Vec<f64> 
 }
 
 #[test]
-fn committed_handheld_stack_within_a_third_of_a_pixel() {
+fn committed_handheld_stack_within_a_third_of_a_pixel_where_each_frame_is_sharp() {
     let (lumas, t) = handheld();
     let reg = register(&lumas, t.reference, &RegisterParams::default()).unwrap();
     assert_eq!(reg.ref_to_frame[t.reference], Affine::IDENTITY);
     assert_eq!(reg.how[t.reference], Placement::Reference);
+    // Where a frame is sharp is where it is fused; its affine follows that depth, so under the
+    // stack's 1 px of parallax it may stray from the background's true affine at its corners.
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/handheld");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("stack.json")).unwrap()).unwrap();
+    // It predates the simulator's later parameters; their defaults change no geometry.
+    let mut params = serde_json::to_value(SimParams::default()).unwrap();
+    for (k, v) in json["params"].as_object().unwrap() {
+        params[k] = v.clone();
+    }
+    let p: SimParams = serde_json::from_value(params).unwrap();
+    let e = sharp_displacement_rms(&p, &reg);
+    assert!(
+        e.iter().all(|f| f.1 <= 0.3),
+        "(frame, px, px affine alone) {e:.3?}"
+    );
     let truth: Vec<Affine> = t.frames.iter().map(|f| f.ref_to_frame).collect();
-    let e = errors(&reg, &truth, t.size[0], t.size[1]);
-    assert!(e.iter().all(|&v| v <= 0.3), "corner errors {e:.3?}");
+    let corners = errors(&reg, &truth, t.size[0], t.size[1]);
+    assert!(
+        corners.iter().all(|&v| v <= 0.5),
+        "corner errors {corners:.3?}"
+    );
     for (i, how) in reg.how.iter().enumerate() {
         if i != t.reference {
             assert!(
@@ -290,8 +309,8 @@ fn local_fields_follow_parallax_where_frames_are_sharp() {
     // 6 px of parallax: the nearest frames, sharp on the near objects, move most against the
     // background; their local fields take the error where they are sharp well below the
     // affine's.
-    // 6 px of parallax (measured: the nearest frame from 2.02 to 1.27 px, the next from 0.86 to
-    // 0.41 px).
+    // 6 px of parallax (measured: the nearest frame from 1.49 to 0.86 px; its affine alone was
+    // 2.02 px off before the affines were fitted chiefly where each frame is sharp).
     let e = local_effect(&layered(23, 6.0));
     let near = e.iter().find(|f| f.0 == 0).unwrap();
     assert!(near.3, "{e:.2?}");
@@ -302,9 +321,12 @@ fn local_fields_follow_parallax_where_frames_are_sharp() {
             "frame {i}: {with:.2} vs {without:.2}"
         );
     }
-    // Without parallax the fields (where any survive) move nothing that matters.
+    // Without parallax the fields (where any survive) move little: each affine is fitted where
+    // its own frame is sharp, so neighbours' affines disagree a little elsewhere and the chained
+    // flow sees that (measured: one frame from 0.14 to 0.25 px; the 1600×1200 tripod stack keeps
+    // no field at all).
     let flat = local_effect(&layered(21, 0.0));
-    assert!(flat.iter().all(|f| f.1 <= f.2 + 0.02), "{flat:.2?}");
+    assert!(flat.iter().all(|f| f.1 <= f.2 + 0.15), "{flat:.2?}");
 }
 
 #[test]

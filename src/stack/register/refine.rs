@@ -4,8 +4,9 @@
 //! fit uses every textured pixel. It is inverse compositional (the reference is the template, so
 //! its gradients are computed once and shared by all frames) with a gain and an offset (frames
 //! differ in exposure), coarse to fine. On the finest level the two images are equalised in
-//! defocus ([`super::equalise`]) and compared only so; a Huber weight limits the pull of whatever still disagrees
-//! (occlusion edges, parallax of near objects).
+//! defocus ([`super::equalise`]) and compared only so, chiefly where the frame is the sharper
+//! one ([`BLURRIER`]); a Huber weight limits the pull of whatever still disagrees (occlusion
+//! edges, parallax of near objects).
 
 use super::equalise::{self, Stack};
 use super::levels::{from_level, to_level, Levels};
@@ -15,6 +16,15 @@ use rayon::prelude::*;
 
 /// Parameters: 6 affine (about the level's centre, in pixels at the half-size), gain, offset.
 const N: usize = 8;
+/// Weight of the finest level's pixels where the frame is blurrier than the reference (the
+/// equalisation blurs the reference there). A frame is fused only where it is sharp, so its
+/// affine is fitted chiefly there; under parallax it then follows the depth the frame is focused
+/// on rather than an average of every depth. 1600×1200 layered linear-light stacks, RMS error
+/// where each frame is sharp, 6 px parallax: the far frame (most of the picture) 1.18 → 0.64 px,
+/// the nearest 2.04 → 1.40 px; fused 25.1 → 27.0 dB (3 px: 25.6 → 27.0; tripod 32.60 → 32.46).
+/// 0.03 gained 0.3 dB more at 6 px but lost 1.2 dB on the tripod stack, with too few pixels
+/// left to pin the nearest frame's affine.
+const BLURRIER: f32 = 0.1;
 /// Huber threshold in robust standard deviations of the residual.
 const HUBER: f32 = 1.5;
 
@@ -130,7 +140,17 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
             let pick = equalise::choose(&tpl.stack, &warped);
             let eq = View::select(&tpl.stack_views, &pick);
             let frame_layer: Vec<u8> = pick.iter().map(|p| p.1).collect();
-            iterate(&eq, &stack.layers, Some(&frame_layer), &mut fit, iterations);
+            let weight: Vec<f32> = pick
+                .iter()
+                .map(|&(template, _)| if template == 0 { 1.0 } else { BLURRIER })
+                .collect();
+            iterate(
+                &eq,
+                &stack.layers,
+                Some((&frame_layer, &weight)),
+                &mut fit,
+                iterations,
+            );
         }
         fit.w = from_level(&fit.w, k);
     }
@@ -141,7 +161,13 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
 }
 
 /// Gauss–Newton steps until one moves no corner by more than a hundredth of a pixel.
-fn iterate(view: &View, frame: &[Plane], layer: Option<&[u8]>, fit: &mut Fit, iterations: usize) {
+fn iterate(
+    view: &View,
+    frame: &[Plane],
+    layer: Option<(&[u8], &[f32])>,
+    fit: &mut Fit,
+    iterations: usize,
+) {
     let mut scale = None;
     for _ in 0..iterations {
         let Some((dw, dgain, doff)) = gauss_newton(view, frame, layer, fit, &mut scale) else {
@@ -254,10 +280,12 @@ pub(super) fn warp_stack(stack: &Stack, cs: &Coords, gain: f32, offset: f32) -> 
 
 /// One robust Gauss–Newton step: the increment warp, gain and offset changes; None when too
 /// little of the frame overlaps or the system is singular. Updates the fit's correlation.
+/// `layer`: per template pixel, which of the frame's planes to sample and the pixel's weight
+/// (None: the first plane, all weighing alike).
 fn gauss_newton(
     view: &View,
     frame: &[Plane],
-    layer: Option<&[u8]>,
+    layer: Option<(&[u8], &[f32])>,
     fit: &mut Fit,
     scale: &mut Option<f32>,
 ) -> Option<(Affine, f32, f32)> {
@@ -269,7 +297,7 @@ fn gauss_newton(
     resid.par_chunks_mut(tw).enumerate().for_each(|(y, row)| {
         for (x, r) in row.iter_mut().enumerate() {
             let i = y * tw + x;
-            let img = &frame[layer.map_or(0, |l| l[i] as usize)];
+            let img = &frame[layer.map_or(0, |l| l.0[i] as usize)];
             *r = cs
                 .sample(img, i)
                 .map_or(f32::NAN, |v| v - gain * view.t[i] - offset);
@@ -307,6 +335,7 @@ fn gauss_newton(
                 let t = view.t[i];
                 let r = e.abs() / s;
                 let wt = if r <= HUBER { 1.0 } else { HUBER / r };
+                let wt = wt * layer.map_or(1.0, |l| l.1[i]);
                 let (gx, gy) = (view.gx[i] * gain, view.gy[i] * gain);
                 let nx = (x as f32 - cx) / half;
                 let j = [nx * gx, ny * gx, gx, nx * gy, ny * gy, gy, t, 1.0];
