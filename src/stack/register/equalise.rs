@@ -46,9 +46,24 @@ pub fn choose(template: &Stack, frame: &[Plane]) -> Vec<(u8, u8)> {
         .map(|k| (k as u8, 0))
         .chain((1..n).map(|k| (0, k as u8)))
         .collect();
-    let costs: Vec<Vec<f32>> = pairs
+    // Each pair's windowed cost folded into the best so far (the lowest cost, the first pair on
+    // a tie) as it comes: holding all fifteen cost planes took 60 bytes a pixel of the level.
+    type Best = (Vec<f32>, Vec<u8>);
+    let merge = |mut a: Best, b: Best| {
+        a.0.par_iter_mut()
+            .zip(a.1.par_iter_mut())
+            .zip(b.0.par_iter().zip(b.1.par_iter()))
+            .for_each(|((ca, ka), (cb, kb))| {
+                if cb.total_cmp(ca).then(kb.cmp(ka)).is_lt() {
+                    (*ca, *ka) = (*cb, *kb);
+                }
+            });
+        a
+    };
+    let best = pairs
         .par_iter()
-        .map(|&(kt, kf)| {
+        .enumerate()
+        .map(|(k, &(kt, kf))| {
             let (t, f) = (&template.layers[kt as usize], &frame[kf as usize]);
             let d = t
                 .data
@@ -59,18 +74,11 @@ pub fn choose(template: &Stack, frame: &[Plane]) -> Vec<(u8, u8)> {
             let penalty = 1.0 + STEP_PENALTY * (kt + kf) as f32;
             let mut c = box_sum(&Plane::from_vec(w, h, 1, d), WINDOW);
             c.data.iter_mut().for_each(|v| *v *= penalty);
-            c.data
+            (c.data, vec![k as u8; w * h])
         })
-        .collect();
-    (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let best = (0..pairs.len())
-                .min_by(|&a, &b| costs[a][i].total_cmp(&costs[b][i]))
-                .unwrap_or(0);
-            pairs[best]
-        })
-        .collect()
+        .reduce_with(merge)
+        .expect("fifteen pairs");
+    best.1.iter().map(|&k| pairs[k as usize]).collect()
 }
 
 /// Sum over the (2r+1)² window around each pixel, truncated at the borders.

@@ -43,13 +43,15 @@ pub struct RegisterParams {
     /// levels add time, not matches, since most of every frame is defocused anyway.
     pub detect_pixels: usize,
     /// The dense refinement stops at the largest level with at most this many pixels, and at
-    /// half size at the finest. Finer is
-    /// more precise until the defocus equalisation's blurs no longer span the stack's defocus:
-    /// on 1600×1200 layered linear-light tripod stacks the mean corner error is 0.37 px at level
-    /// 3 (30k pixels), 0.22 at level 2, 0.17 at level 1 (480k) and 0.23 at full size, and the
-    /// fused PSNR 30.4, 32.4 and 32.6 dB on level 3, 2 and 1 (for 0.7 s more than level 3 on 8
-    /// frames): sub-pixel misregistration, not labelling, was most of what separated the output
-    /// from the truth away from depth steps.
+    /// half size at the finest (full size was worse: the defocus equalisation's blurs no longer
+    /// span a stack's defocus there). Finer is more precise: on 1600×1200 layered linear-light
+    /// stacks (weighted to where each frame is sharp, at 0.1) the fused PSNR is 28.9 / 31.6 /
+    /// 32.5 dB on the tripod stack at level 3 / 2 / 1, 25.6 / 26.6 / 27.0 with 3 px of parallax.
+    /// Level 1 (480k pixels) cost 0.1 s a frame more than level 2 on two cores and held 110 MB
+    /// more (its blur stacks), beyond what the memory plan gives registration; 200k keeps both
+    /// in bounds. Before, at 100k (level 3 unweighted), the affines were 0.37 px off on the
+    /// tripod stack: sub-pixel misregistration was most of what kept the output from the truth
+    /// away from depth steps.
     pub refine_pixels: usize,
     /// Pyramid levels the dense refinement visits, coarse to fine; 0 keeps the keypoint affine.
     pub refine_levels: usize,
@@ -91,7 +93,7 @@ impl Default for RegisterParams {
     fn default() -> Self {
         Self {
             detect_pixels: 400_000,
-            refine_pixels: 500_000,
+            refine_pixels: 200_000,
             refine_levels: 4,
             refine_iterations: 10,
             local: true,
@@ -300,17 +302,24 @@ pub fn register_with<'a>(
     }
     if p.refine_levels > 0 {
         let tpl = Template::new(&frames[reference].levels, fine, coarse);
-        let refined: Vec<Option<refine::Refined>> = (0..n)
-            .into_par_iter()
-            .map(|i| {
-                let matched = matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
-                let r = matched.then(|| {
-                    let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
-                    refine::refine(&tpl, levels, init, p.refine_iterations)
-                });
-                step().map(|()| r)
-            })
-            .collect::<Result<_, _>>()?;
+        // As many frames at once as are prepared at once: each refinement holds its frame's
+        // blur stack and the planes compared with the template's.
+        let mut refined: Vec<Option<refine::Refined>> = Vec::with_capacity(n);
+        for start in (0..n).step_by(at_once) {
+            let some: Vec<Option<refine::Refined>> = (start..(start + at_once).min(n))
+                .into_par_iter()
+                .map(|i| {
+                    let matched =
+                        matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
+                    let r = matched.then(|| {
+                        let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
+                        refine::refine(&tpl, levels, init, p.refine_iterations)
+                    });
+                    step().map(|()| r)
+                })
+                .collect::<Result<_, _>>()?;
+            refined.extend(some);
+        }
         for (i, r) in refined.into_iter().enumerate() {
             if let Some(r) = r {
                 reg.ref_to_frame[i] = r.affine;
