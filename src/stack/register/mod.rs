@@ -265,14 +265,7 @@ pub fn register_with<'a>(
             false => Ok(()),
         }
     };
-    let mut frames: Vec<Prepared> = Vec::with_capacity(n);
-    for start in (0..n).step_by(at_once) {
-        let prepared: Vec<Prepared> = (start..(start + at_once).min(n))
-            .into_par_iter()
-            .map(|i| prepare(i).and_then(|f| step().map(|()| f)))
-            .collect::<Result<_, _>>()?;
-        frames.extend(prepared);
-    }
+    let frames = in_batches(n, at_once, |i| prepare(i).and_then(|f| step().map(|()| f)))?;
     let m = Matcher {
         frames: &frames,
         p,
@@ -304,22 +297,14 @@ pub fn register_with<'a>(
         let tpl = Template::new(&frames[reference].levels, fine, coarse);
         // As many frames at once as are prepared at once: each refinement holds its frame's
         // blur stack and the planes compared with the template's.
-        let mut refined: Vec<Option<refine::Refined>> = Vec::with_capacity(n);
-        for start in (0..n).step_by(at_once) {
-            let some: Vec<Option<refine::Refined>> = (start..(start + at_once).min(n))
-                .into_par_iter()
-                .map(|i| {
-                    let matched =
-                        matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
-                    let r = matched.then(|| {
-                        let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
-                        refine::refine(&tpl, levels, init, p.refine_iterations)
-                    });
-                    step().map(|()| r)
-                })
-                .collect::<Result<_, _>>()?;
-            refined.extend(some);
-        }
+        let refined = in_batches(n, at_once, |i| {
+            let matched = matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
+            let r = matched.then(|| {
+                let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
+                refine::refine(&tpl, levels, init, p.refine_iterations)
+            });
+            step().map(|()| r)
+        })?;
         for (i, r) in refined.into_iter().enumerate() {
             if let Some(r) = r {
                 reg.ref_to_frame[i] = r.affine;
@@ -363,6 +348,24 @@ pub fn register_with<'a>(
         }
     }
     Ok(reg)
+}
+
+/// `f` of every frame 0..n, `at_once` frames in parallel at a time (what the memory plan allows
+/// to be held at once), in order; the first error stops it.
+fn in_batches<T: Send>(
+    n: usize,
+    at_once: usize,
+    f: impl Fn(usize) -> Result<T, RegisterError> + Sync,
+) -> Result<Vec<T>, RegisterError> {
+    let mut out = Vec::with_capacity(n);
+    for start in (0..n).step_by(at_once) {
+        let batch: Vec<T> = (start..(start + at_once).min(n))
+            .into_par_iter()
+            .map(&f)
+            .collect::<Result<_, _>>()?;
+        out.extend(batch);
+    }
+    Ok(out)
 }
 
 /// Settles frame `i`: its direct fit if good enough, else a chain through a registered frame

@@ -39,37 +39,24 @@ pub(super) struct View {
 
 impl View {
     fn new(p: &Plane) -> View {
-        let (w, h) = (p.width, p.height);
-        let mut gx = vec![0.0f32; w * h];
-        let mut gy = vec![0.0f32; w * h];
-        for y in 1..h.saturating_sub(1) {
-            for x in 1..w - 1 {
-                let i = y * w + x;
-                gx[i] = (p.data[i + 1] - p.data[i - 1]) / 2.0;
-                gy[i] = (p.data[i + w] - p.data[i - w]) / 2.0;
-            }
-        }
-        View {
-            width: w,
-            height: h,
-            t: p.data.clone(),
-            gx,
-            gy,
-        }
+        View::from_layers(std::slice::from_ref(p), |_| 0)
     }
 
-    /// Per pixel, the value and gradients (as [`View::new`] takes them) of the layer `pick`
-    /// selects: computed here rather than held for every layer, which cost 12 bytes a pixel of
-    /// the level per layer.
+    /// Per pixel, the value and gradients of the layer `pick` selects: computed here rather
+    /// than held for every layer, which cost 12 bytes a pixel of the level per layer.
     pub fn select(layers: &[Plane], pick: &[(u8, u8)]) -> View {
+        View::from_layers(layers, |i| pick[i].0 as usize)
+    }
+
+    /// Per pixel `i`, the value and central differences of `layers[layer(i)]` there.
+    fn from_layers(layers: &[Plane], layer: impl Fn(usize) -> usize + Sync) -> View {
         let (w, h) = (layers[0].width, layers[0].height);
-        let n = pick.len();
         let mut v = View {
             width: w,
             height: h,
-            t: vec![0.0; n],
-            gx: vec![0.0; n],
-            gy: vec![0.0; n],
+            t: vec![0.0; w * h],
+            gx: vec![0.0; w * h],
+            gy: vec![0.0; w * h],
         };
         (
             v.t.par_chunks_mut(w),
@@ -81,7 +68,7 @@ impl View {
             .for_each(|(y, (t, gx, gy))| {
                 for x in 0..w {
                     let i = y * w + x;
-                    let p = &layers[pick[i].0 as usize].data;
+                    let p = &layers[layer(i)].data;
                     t[x] = p[i];
                     if x > 0 && x + 1 < w && y > 0 && y + 1 < h {
                         gx[x] = (p[i + 1] - p[i - 1]) / 2.0;
