@@ -7,6 +7,10 @@
 //! Kolmogorov's maxflow-v3: two search trees grown breadth-first from a FIFO of active nodes,
 //! augmentation along the path found, then orphan adoption with the timestamp/distance heuristic.
 //! Everything is iterative, so arbitrarily long tree paths cannot overflow the stack.
+//!
+//! An expansion move often gives capacity to a small part of the grid (the pixels that may take
+//! its label), so the solver keeps a list of the nodes given capacity since the last reset and
+//! initialises, searches and clears only those: a move costs what it touches, not the grid.
 
 use std::collections::VecDeque;
 
@@ -20,6 +24,9 @@ const UP: u8 = 3;
 const TERMINAL: u8 = 4;
 /// Parent code of a node whose tree arc was just saturated and that awaits adoption.
 const ORPHAN: u8 = 5;
+
+/// Bit of `Node::nbrs` (above the four direction bits) set once the node is in `touched`.
+const TOUCHED: u8 = 1 << 4;
 
 const FREE: u8 = 0;
 const SOURCE: u8 = 1;
@@ -42,7 +49,8 @@ struct Node {
     /// Direction of the tree parent, `TERMINAL` or `ORPHAN`; stale while the node is free.
     parent: u8,
     tree: u8,
-    /// Bit `d` is set when the neighbour in direction `d` exists.
+    /// Bit `d` is set when the neighbour in direction `d` exists; `TOUCHED` when the node has
+    /// been given capacity since the last reset.
     nbrs: u8,
     /// In the active queue (or being processed), so it must not be queued again.
     active: bool,
@@ -60,6 +68,9 @@ pub struct GridMaxflow {
     time: u32,
     active: VecDeque<u32>,
     orphans: Vec<u32>,
+    /// Nodes given capacity since the last reset, in first-touch order; every other node has
+    /// no capacity, is free and is never reached by the search.
+    touched: Vec<u32>,
 }
 
 impl GridMaxflow {
@@ -67,7 +78,8 @@ impl GridMaxflow {
         Self::default()
     }
 
-    /// Clears and sizes for a width×height grid with every capacity zero; keeps allocations for reuse.
+    /// Clears and sizes for a width×height grid with every capacity zero; keeps allocations for
+    /// reuse. On a grid of the same size only the nodes touched since the last reset are cleared.
     pub fn reset(&mut self, width: usize, height: usize) {
         let n = width
             .checked_mul(height)
@@ -77,13 +89,25 @@ impl GridMaxflow {
             n < u32::MAX as usize,
             "grid of {width}x{height} is too large"
         );
-        self.width = width;
-        self.height = height;
-        self.step = [1, 1usize.wrapping_neg(), width, width.wrapping_neg()];
         self.flow = 0;
         self.time = 0;
         self.active.clear();
         self.orphans.clear();
+        if (width, height) == (self.width, self.height) && self.nodes.len() == n {
+            for &i in &self.touched {
+                let node = &mut self.nodes[i as usize];
+                *node = Node {
+                    nbrs: node.nbrs & !TOUCHED,
+                    ..Node::default()
+                };
+            }
+            self.touched.clear();
+            return;
+        }
+        self.width = width;
+        self.height = height;
+        self.step = [1, 1usize.wrapping_neg(), width, width.wrapping_neg()];
+        self.touched.clear();
         self.nodes.clear();
         self.nodes.reserve(n);
         for y in 0..height {
@@ -110,6 +134,16 @@ impl GridMaxflow {
         }
     }
 
+    /// Records that `node` has capacity, so the search and the next reset visit it.
+    #[inline]
+    fn touch(&mut self, node: usize) {
+        let n = &mut self.nodes[node];
+        if n.nbrs & TOUCHED == 0 {
+            n.nbrs |= TOUCHED;
+            self.touched.push(node as u32);
+        }
+    }
+
     pub fn width(&self) -> usize {
         self.width
     }
@@ -123,6 +157,7 @@ impl GridMaxflow {
     /// (accumulates).
     pub fn add_tweights(&mut self, node: usize, source: i32, sink: i32) {
         assert!(source >= 0 && sink >= 0, "negative terminal capacity");
+        self.touch(node);
         let node = &mut self.nodes[node];
         let delta = i64::from(node.tr);
         let source = i64::from(source) + delta.max(0);
@@ -152,6 +187,8 @@ impl GridMaxflow {
             "node {p} has no neighbour in direction {d}"
         );
         let q = p.wrapping_add(self.step[d as usize]);
+        self.touch(p);
+        self.touch(q);
         let fwd = i64::from(self.nodes[p].cap[d as usize]) + i64::from(fwd);
         let rev = i64::from(self.nodes[q].cap[(d ^ 1) as usize]) + i64::from(rev);
         // Augmentation can move an edge's whole capacity to either direction, so the pair's sum
@@ -220,7 +257,8 @@ impl GridMaxflow {
         self.active.clear();
         self.orphans.clear();
         self.time = 0;
-        for (i, n) in self.nodes.iter_mut().enumerate() {
+        for &i in &self.touched {
+            let n = &mut self.nodes[i as usize];
             n.ts = 0;
             n.dist = 1;
             n.parent = TERMINAL;
@@ -231,7 +269,7 @@ impl GridMaxflow {
                 _ => FREE,
             };
             if n.active {
-                self.active.push_back(i as u32);
+                self.active.push_back(i);
             }
         }
     }
@@ -767,6 +805,31 @@ mod tests {
             assert_eq!(flow, fresh_flow);
             let seg: Vec<bool> = (0..w * h).map(|p| g.in_sink(p)).collect();
             assert_eq!(seg, fresh_seg);
+        }
+    }
+
+    /// A problem on a few scattered nodes of a grid whose every node was used before: the reset
+    /// clears only what the last problem touched, and the search must not wander into the rest.
+    #[test]
+    fn sparse_problem_after_dense_one_on_the_same_grid() {
+        let mut rng = XorShift(4242);
+        let mut g = GridMaxflow::new();
+        for _ in 0..10 {
+            random_problem(&mut rng, 12, 9, 100).load(&mut g);
+            g.maxflow();
+            let mut pb = Problem::new(12, 9);
+            for p in (0..12 * 9).filter(|p| p % 7 < 2) {
+                pb.tweights(p, rng.upto(50), rng.upto(50));
+                if p % 12 + 1 < 12 && (p + 1) % 7 < 2 {
+                    let (f, r) = (rng.upto(30), rng.upto(30));
+                    pb.right(p, f, r);
+                }
+            }
+            pb.load(&mut g);
+            assert!(g.touched.len() < 12 * 9 / 2);
+            let flow = g.maxflow();
+            check_certificate(&pb, &g, flow);
+            assert_eq!(flow, solve(&pb).0);
         }
     }
 
