@@ -52,114 +52,164 @@ fn add_unary(g: &mut GridMaxflow, i: usize, cost0: i32, cost1: i32) {
     }
 }
 
-/// Runs expansion cycles over `candidates` until a cycle changes nothing or `max_cycles` is
-/// reached; returns the new labels. Pixels that are not free keep their labels and act as fixed
-/// boundary conditions for their free neighbours.
+/// An expansion move to try: a label and the free pixels allowed to take it.
+pub struct Move {
+    pub label: u8,
+    pub pixels: Vec<u32>,
+}
+
+/// Runs cycles of `moves` until a cycle changes nothing or `max_cycles` is reached; returns the
+/// new labels. Pixels that are not free keep their labels and act as fixed boundary conditions
+/// for their free neighbours.
+///
+/// A pixel that takes a move's label lets its free neighbours take that label too, so a seam can
+/// move wherever the label spreads, not only over the pixels first allowed. A move is skipped when
+/// none of its pixels nor their neighbours changed since it last changed nothing: its graph would
+/// be the same, and so would its answer.
 pub fn expand(
     grid: &Grid,
-    candidates: &[u8],
+    mut moves: Vec<Move>,
     costs: &impl Costs,
     max_cycles: usize,
     solver: &mut GridMaxflow,
 ) -> Vec<u8> {
+    let (w, h) = (grid.width, grid.height);
+    let n = w * h;
     let mut cur = grid.labels.to_vec();
-    let n = grid.width * grid.height;
-    // Sparse grids (a band around seams) visit only their free pixels.
-    let free_idx: Vec<u32> = (0..n as u32)
-        .filter(|&i| grid.free.is_none_or(|f| f[i as usize]))
-        .collect();
-    for _ in 0..max_cycles {
-        let mut changed = false;
-        for &alpha in candidates {
-            let m = Move {
-                grid,
-                free_idx: &free_idx,
-                alpha,
-            };
-            changed |= m.run(&mut cur, costs, solver);
+    let free = |p: usize| grid.free.is_none_or(|f| f[p]);
+    // allowed[k * n + p]: pixel p may take move k's label.
+    let mut allowed = vec![false; moves.len() * n];
+    for (k, m) in moves.iter().enumerate() {
+        for &p in &m.pixels {
+            debug_assert!(free(p as usize), "pixel {p} is fixed");
+            allowed[k * n + p as usize] = true;
         }
-        if !changed {
+    }
+    // Move counts: when each pixel last changed, when each move last changed nothing (0: never).
+    let mut step = 0u32;
+    let mut changed_at = vec![0u32; n];
+    let mut failed_at = vec![0u32; moves.len()];
+    let neighbours = |p: usize| {
+        let (x, y) = (p % w, p / w);
+        [
+            (x + 1 < w).then(|| p + 1),
+            (y + 1 < h).then(|| p + w),
+            (x > 0).then(|| p - 1),
+            (y > 0).then(|| p - w),
+        ]
+        .into_iter()
+        .flatten()
+    };
+    for _ in 0..max_cycles {
+        let mut cycle_changed = false;
+        for (k, m) in moves.iter_mut().enumerate() {
+            let since = failed_at[k];
+            let unchanged = |p: usize| changed_at[p] < since;
+            if since > 0
+                && m.pixels.iter().all(|&p| {
+                    let p = p as usize;
+                    unchanged(p) && neighbours(p).all(unchanged)
+                })
+            {
+                continue;
+            }
+            step += 1;
+            let allowed = &mut allowed[k * n..(k + 1) * n];
+            let taken = run_move(grid, m, allowed, &mut cur, costs, solver);
+            if taken.is_empty() {
+                failed_at[k] = step;
+                continue;
+            }
+            cycle_changed = true;
+            for p in taken {
+                changed_at[p as usize] = step;
+                for q in neighbours(p as usize) {
+                    if free(q) && !allowed[q] {
+                        allowed[q] = true;
+                        m.pixels.push(q as u32);
+                    }
+                }
+            }
+        }
+        if !cycle_changed {
             break;
         }
     }
     cur
 }
 
-/// One α-expansion move: every free pixel either keeps its label or takes `alpha`, whichever
-/// minimises the energy (exactly, by a minimum cut).
-struct Move<'a> {
-    grid: &'a Grid<'a>,
-    free_idx: &'a [u32],
-    alpha: u8,
-}
-
-impl Move<'_> {
-    /// Returns whether any label changed.
-    fn run(&self, cur: &mut [u8], costs: &impl Costs, g: &mut GridMaxflow) -> bool {
-        let alpha = self.alpha;
-        let (w, h) = (self.grid.width, self.grid.height);
-        let var = |i: usize, cur: &[u8]| self.grid.free.is_none_or(|f| f[i]) && cur[i] != alpha;
-        if !self.free_idx.iter().any(|&i| cur[i as usize] != alpha) {
-            return false;
+/// One α-expansion move: every pixel of `m` either keeps its label or takes `m.label`,
+/// whichever minimises the energy (exactly, by a minimum cut). Returns the pixels that took it.
+fn run_move(
+    grid: &Grid,
+    m: &Move,
+    allowed: &[bool],
+    cur: &mut [u8],
+    costs: &impl Costs,
+    g: &mut GridMaxflow,
+) -> Vec<u32> {
+    let alpha = m.label;
+    let (w, h) = (grid.width, grid.height);
+    let var = |i: usize, cur: &[u8]| allowed[i] && cur[i] != alpha;
+    if !m.pixels.iter().any(|&i| cur[i as usize] != alpha) {
+        return Vec::new();
+    }
+    g.reset(w, h);
+    for &p in &m.pixels {
+        let p = p as usize;
+        let lp = cur[p];
+        if lp == alpha {
+            continue;
         }
-        g.reset(w, h);
-        for &p in self.free_idx {
-            let p = p as usize;
-            let lp = cur[p];
-            if lp == alpha {
+        let (x, y) = (p % w, p / w);
+        add_unary(g, p, costs.unary(p, lp), costs.unary(p, alpha));
+        // (neighbour exists, q, right/down edge)
+        let nbrs = [
+            (x + 1 < w, p + 1, Some(true)),
+            (y + 1 < h, p + w, Some(false)),
+            (x > 0, p.wrapping_sub(1), None),
+            (y > 0, p.wrapping_sub(w), None),
+        ];
+        for (exists, q, forward) in nbrs {
+            if !exists {
                 continue;
             }
-            let (x, y) = (p % w, p / w);
-            add_unary(g, p, costs.unary(p, lp), costs.unary(p, alpha));
-            // (neighbour exists, q, right/down edge)
-            let nbrs = [
-                (x + 1 < w, p + 1, Some(true)),
-                (y + 1 < h, p + w, Some(false)),
-                (x > 0, p.wrapping_sub(1), None),
-                (y > 0, p.wrapping_sub(w), None),
-            ];
-            for (exists, q, forward) in nbrs {
-                if !exists {
-                    continue;
-                }
-                let lq = cur[q];
-                if var(q, cur) {
-                    // Both free: the edge is added once, from its left/top end.
-                    if let Some(right) = forward {
-                        // E(xp, xq) = A + (C-A)xp + (D-C)xq + (B+C-A-D)(1-xp)xq, D = 0.
-                        let a = costs.pairwise(p, q, lp, lq);
-                        let b = costs.pairwise(p, q, lp, alpha);
-                        let c = costs.pairwise(p, q, alpha, lq);
-                        add_unary(g, p, 0, c - a);
-                        add_unary(g, q, 0, -c);
-                        let cap = (b + c - a).max(0);
-                        if right {
-                            g.add_right(p, cap, 0);
-                        } else {
-                            g.add_down(p, cap, 0);
-                        }
+            let lq = cur[q];
+            if var(q, cur) {
+                // Both variable: the edge is added once, from its left/top end.
+                if let Some(right) = forward {
+                    // E(xp, xq) = A + (C-A)xp + (D-C)xq + (B+C-A-D)(1-xp)xq, D = 0.
+                    let a = costs.pairwise(p, q, lp, lq);
+                    let b = costs.pairwise(p, q, lp, alpha);
+                    let c = costs.pairwise(p, q, alpha, lq);
+                    add_unary(g, p, 0, c - a);
+                    add_unary(g, q, 0, -c);
+                    let cap = (b + c - a).max(0);
+                    if right {
+                        g.add_right(p, cap, 0);
+                    } else {
+                        g.add_down(p, cap, 0);
                     }
-                } else {
-                    add_unary(
-                        g,
-                        p,
-                        costs.pairwise(p, q, lp, lq),
-                        costs.pairwise(p, q, alpha, lq),
-                    );
                 }
+            } else {
+                add_unary(
+                    g,
+                    p,
+                    costs.pairwise(p, q, lp, lq),
+                    costs.pairwise(p, q, alpha, lq),
+                );
             }
         }
-        g.maxflow();
-        let mut changed = false;
-        for &p in self.free_idx {
-            let p = p as usize;
-            if cur[p] != alpha && g.in_sink(p) {
-                cur[p] = alpha;
-                changed = true;
-            }
-        }
-        changed
     }
+    g.maxflow();
+    let mut taken = Vec::new();
+    for &p in &m.pixels {
+        if cur[p as usize] != alpha && g.in_sink(p as usize) {
+            cur[p as usize] = alpha;
+            taken.push(p);
+        }
+    }
+    taken
 }
 
 #[cfg(test)]
@@ -200,6 +250,20 @@ mod tests {
         }
     }
 
+    /// Moves that let every free pixel take every label of `labels`.
+    fn every_pixel(grid: &Grid, labels: &[u8]) -> Vec<Move> {
+        let free: Vec<u32> = (0..(grid.width * grid.height) as u32)
+            .filter(|&p| grid.free.is_none_or(|f| f[p as usize]))
+            .collect();
+        labels
+            .iter()
+            .map(|&label| Move {
+                label,
+                pixels: free.clone(),
+            })
+            .collect()
+    }
+
     fn random_problem(rng: &mut Rng, w: usize, h: usize, n: usize) -> RandomCosts {
         RandomCosts {
             width: w,
@@ -232,7 +296,7 @@ mod tests {
                         labels: &labels,
                         free: None,
                     };
-                    let next = expand(&grid, &[a], &c, 1, &mut solver);
+                    let next = expand(&grid, every_pixel(&grid, &[a]), &c, 1, &mut solver);
                     let e2 = energy(w, h, &next, &c);
                     assert!(e2 <= e, "trial {trial}: move on {a} raised {e} to {e2}");
                     // The move is optimal: no labelling reachable by one α-move is cheaper.
@@ -277,7 +341,13 @@ mod tests {
             free: Some(&free),
         };
         let cands: Vec<u8> = (0..n as u8).collect();
-        let out = expand(&grid, &cands, &c, 5, &mut GridMaxflow::new());
+        let out = expand(
+            &grid,
+            every_pixel(&grid, &cands),
+            &c,
+            5,
+            &mut GridMaxflow::new(),
+        );
         for p in 0..w * h {
             if !free[p] {
                 assert_eq!(out[p], labels[p]);
@@ -288,5 +358,96 @@ mod tests {
             "some free pixel should move on a random problem"
         );
         assert!(energy(w, h, &out, &c) < energy(w, h, &labels, &c));
+    }
+
+    /// Skipped moves are the ones that would change nothing: after enough cycles no move over
+    /// every pixel lowers the energy any more.
+    #[test]
+    fn skipping_moves_still_reaches_a_local_minimum() {
+        let mut rng = Rng(31337);
+        let mut solver = GridMaxflow::new();
+        for _ in 0..10 {
+            let (w, h, n) = (12, 10, 5);
+            let c = random_problem(&mut rng, w, h, n);
+            let labels: Vec<u8> = (0..w * h).map(|_| rng.below(n as u64) as u8).collect();
+            let grid = Grid {
+                width: w,
+                height: h,
+                labels: &labels,
+                free: None,
+            };
+            let cands: Vec<u8> = (0..n as u8).collect();
+            let out = expand(&grid, every_pixel(&grid, &cands), &c, 100, &mut solver);
+            let e = energy(w, h, &out, &c);
+            assert!(e < energy(w, h, &labels, &c));
+            for &a in &cands {
+                let done = Grid {
+                    labels: &out,
+                    ..grid
+                };
+                let again = expand(&done, every_pixel(&done, &[a]), &c, 1, &mut solver);
+                assert_eq!(again, out, "a move on {a} still changes the labels");
+            }
+        }
+    }
+
+    /// A label offered to a few pixels reaches others only by spreading from them: every pixel
+    /// that takes it is joined to an offered pixel through pixels that took it.
+    #[test]
+    fn a_label_spreads_only_from_the_pixels_offered_it() {
+        let mut rng = Rng(2024);
+        let mut spread = false;
+        for _ in 0..20 {
+            let (w, h, n) = (10, 8, 4);
+            let mut c = random_problem(&mut rng, w, h, n);
+            // Label 3 is cheap everywhere, so it would win every pixel if offered everywhere.
+            for u in &mut c.unary {
+                u[3] = 0;
+            }
+            let labels: Vec<u8> = (0..w * h).map(|_| rng.below(3) as u8).collect();
+            let grid = Grid {
+                width: w,
+                height: h,
+                labels: &labels,
+                free: None,
+            };
+            let offered: Vec<u32> = vec![(w * (h / 2) + w / 2) as u32];
+            let moves = vec![Move {
+                label: 3,
+                pixels: offered.clone(),
+            }];
+            let out = expand(&grid, moves, &c, 5, &mut GridMaxflow::new());
+            // Flood from the offered pixels through pixels labelled 3.
+            let mut reached = vec![false; w * h];
+            let mut stack: Vec<usize> = offered
+                .iter()
+                .map(|&p| p as usize)
+                .filter(|&p| out[p] == 3)
+                .collect();
+            while let Some(p) = stack.pop() {
+                if std::mem::replace(&mut reached[p], true) {
+                    continue;
+                }
+                let (x, y) = (p % w, p / w);
+                for (ok, q) in [
+                    (x + 1 < w, p + 1),
+                    (y + 1 < h, p + w),
+                    (x > 0, p.wrapping_sub(1)),
+                    (y > 0, p.wrapping_sub(w)),
+                ] {
+                    if ok && out[q] == 3 {
+                        stack.push(q);
+                    }
+                }
+            }
+            for p in 0..w * h {
+                assert!(out[p] != 3 || reached[p], "pixel {p} took 3 unconnected");
+            }
+            spread |= out.iter().filter(|&&l| l == 3).count() > 1;
+        }
+        assert!(
+            spread,
+            "the cheap label never spread past the pixel offered it"
+        );
     }
 }

@@ -4,10 +4,15 @@
 //! stack, B the seam cost |I_lp(p) − I_lq(p)| + |I_lp(q) − I_lq(q)| plus a small constant for any
 //! label change. Solved by α-expansion on a coarse level, then re-solved at full resolution only
 //! in a band around the coarse label boundaries and where the coarse label misses fine detail.
+//!
+//! Each pixel is offered only a few labels: its sharpest frames and the labels it and its
+//! neighbours hold. On smooth or noisy content many frames tie and the sharpest frame changes from
+//! pixel to pixel, so offering every frame everywhere made the cost grow with frames × pixels;
+//! the labels found this way have the same energy within a fraction of a percent.
 
 use super::align::Coverage;
 use super::blur::downsample_area;
-use super::expansion::{expand, Costs, Grid};
+use super::expansion::{energy, expand, Costs, Grid, Move};
 use super::focus::{
     downsample_amplitude, focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE,
 };
@@ -28,7 +33,11 @@ pub struct GraphCutParams {
     pub noise_floor: f32,
     /// Pixel count the coarse level is reduced to.
     pub coarse_pixels: usize,
-    /// Expansion cycles over all labels per window, at most.
+    /// How many of its sharpest frames a pixel is offered, besides the labels it and its four
+    /// neighbours hold; `usize::MAX` offers every frame everywhere (exhaustive expansion, the
+    /// reference the labelling's energy is measured against).
+    pub candidates: usize,
+    /// Expansion cycles over a window's moves, at most.
     pub max_cycles: usize,
     /// Pyramid levels of the seam blending.
     pub blend_levels: usize,
@@ -42,6 +51,7 @@ impl Default for GraphCutParams {
             kappa: 0.02,
             noise_floor: 0.002,
             coarse_pixels: 60_000,
+            candidates: 2,
             max_cycles: 3,
             blend_levels: 5,
         }
@@ -167,15 +177,46 @@ impl<'a, T: Sample> Level<'a, T> {
         }
     }
 
-    fn sharpest(&self, p: usize) -> u8 {
+    /// Writes into `top` the `k` frames with the largest focus amplitude at `p`, sharpest first
+    /// (ties to the lower index); every frame when `k` is at least their number.
+    fn sharpest(&self, p: usize, k: usize, top: &mut Vec<u8>) {
         let (a, i) = (&self.amps.per_frame, p - self.amps.offset);
-        let mut best = 0;
-        for l in 1..a.len() {
-            if a[l][i] > a[best][i] {
-                best = l;
-            }
+        top.clear();
+        if k >= a.len() {
+            top.extend(0..a.len() as u8);
+            return;
         }
-        best as u8
+        let amp = |l: u8| a[l as usize][i];
+        for l in 0..a.len() as u8 {
+            if top.len() == k && top.last().is_none_or(|&t| amp(t) >= amp(l)) {
+                continue;
+            }
+            let at = top
+                .iter()
+                .position(|&t| amp(t) < amp(l))
+                .unwrap_or(top.len());
+            if top.len() == k {
+                top.pop();
+            }
+            top.insert(at, l);
+        }
+    }
+
+    /// The sharpest frame at each of the level's first `pixels` pixels: where labelling starts.
+    fn sharpest_labels(&self, pixels: usize) -> Vec<u8> {
+        let mut top = Vec::with_capacity(1);
+        (0..pixels)
+            .map(|i| {
+                self.sharpest(i, 1, &mut top);
+                top[0]
+            })
+            .collect()
+    }
+
+    /// Colours of frame `l` at `p`.
+    #[inline]
+    fn colors(&self, p: usize, l: u8) -> &[T] {
+        &self.colors[l as usize][p * self.channels..(p + 1) * self.channels]
     }
 
     /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
@@ -186,6 +227,54 @@ impl<'a, T: Sample> Level<'a, T> {
         let a = self.amps.per_frame[l as usize][i] as f32;
         ((m - a) / (m + self.eps) * self.unary_scale) as i32
     }
+}
+
+/// The whole level's costs, read from the frames: what the labelling's energy is measured with.
+impl<T: Sample> Costs for Level<'_, T> {
+    fn unary(&self, p: usize, l: u8) -> i32 {
+        Level::unary(self, p, l)
+    }
+
+    fn pairwise(&self, p: usize, q: usize, lp: u8, lq: u8) -> i32 {
+        seam(|p, l| self.colors(p, l), self.kappa, p, q, lp, lq)
+    }
+}
+
+/// The seam cost B(p,q) of labels `lp`, `lq` (eq. 4), given where the colours of a pixel in a
+/// frame are: both frames' difference at both pixels, plus κ for any change.
+#[inline]
+fn seam<'c, T: Sample + 'c>(
+    colors: impl Fn(usize, u8) -> &'c [T],
+    kappa: i32,
+    p: usize,
+    q: usize,
+    lp: u8,
+    lq: u8,
+) -> i32 {
+    if lp == lq {
+        return 0;
+    }
+    let diff = |i: usize| -> i32 {
+        colors(i, lp)
+            .iter()
+            .zip(colors(i, lq))
+            .map(|(x, y)| (x.to_f32() - y.to_f32()).abs() as i32)
+            .sum()
+    };
+    diff(p) + diff(q) + kappa
+}
+
+/// Energy of `labels` for an aligned stack, by the same terms the labelling minimises, at full
+/// resolution: to compare labellings (the default candidates against exhaustive expansion).
+pub fn labelling_energy<T: Sample>(
+    frames: &[Image<T>],
+    coverage: &[Coverage],
+    labels: &[u8],
+    p: &GraphCutParams,
+) -> i64 {
+    let (w, h) = (frames[0].width, frames[0].height);
+    let amps = Amps::for_rows(frames, coverage, &p.focus, 0..h);
+    energy(w, h, labels, &Level::new(frames, &amps, p.lambda, p))
 }
 
 /// One tile's problem gathered into contiguous memory: the costs of the few labels worth trying,
@@ -223,7 +312,7 @@ impl<T: Sample> TileCosts<T> {
             for x in x0..x0 + w {
                 let p = y * width + x;
                 for &l in labels {
-                    colors.extend_from_slice(&level.colors[l as usize][p * ch..p * ch + ch]);
+                    colors.extend_from_slice(level.colors(p, l));
                     unary.push(level.unary(p, l));
                 }
             }
@@ -239,16 +328,10 @@ impl<T: Sample> TileCosts<T> {
     }
 
     #[inline]
-    fn color_diff(&self, p: usize, a: u8, b: u8) -> i32 {
+    fn colors(&self, p: usize, l: u8) -> &[T] {
         let ch = self.channels;
-        let base = p * self.slots;
-        let ia = (base + self.slot[a as usize] as usize) * ch;
-        let ib = (base + self.slot[b as usize] as usize) * ch;
-        self.colors[ia..ia + ch]
-            .iter()
-            .zip(&self.colors[ib..ib + ch])
-            .map(|(x, y)| (x.to_f32() - y.to_f32()).abs() as i32)
-            .sum()
+        let i = (p * self.slots + self.slot[l as usize] as usize) * ch;
+        &self.colors[i..i + ch]
     }
 }
 
@@ -260,10 +343,7 @@ impl<T: Sample> Costs for TileCosts<T> {
 
     #[inline]
     fn pairwise(&self, p: usize, q: usize, lp: u8, lq: u8) -> i32 {
-        if lp == lq {
-            return 0;
-        }
-        self.color_diff(p, lp, lq) + self.color_diff(q, lp, lq) + self.kappa
+        seam(|p, l| self.colors(p, l), self.kappa, p, q, lp, lq)
     }
 }
 
@@ -311,8 +391,7 @@ pub fn label_stack<T: Sample>(
     };
     if f == 1 {
         let mut labels = focus.with(0..h, |a| {
-            let full = Level::new(frames, a, p.lambda, p);
-            (0..w * h).map(|i| full.sharpest(i)).collect::<Vec<u8>>()
+            Level::new(frames, a, p.lambda, p).sharpest_labels(w * h)
         });
         let solve = Solve {
             frames,
@@ -330,7 +409,7 @@ pub fn label_stack<T: Sample>(
     let (cw, ch) = (small[0].width, small[0].height);
     let camps = Amps::new(0, camps);
     let coarse = Level::new(&small, &camps, p.lambda / f as f32, p);
-    let mut clabels: Vec<u8> = (0..cw * ch).map(|i| coarse.sharpest(i)).collect();
+    let mut clabels = coarse.sharpest_labels(cw * ch);
     let solve = Solve {
         frames: &small,
         focus: &Focus::<T>::Whole(&camps),
@@ -489,15 +568,12 @@ impl<T: Sample> Solve<'_, T> {
                 let rows = first.y0.saturating_sub(1)..(y1 + 1).min(h);
                 self.focus.with(rows, |amps| {
                     let level = Level::new(self.frames, amps, self.lambda, self.params);
-                    let cycles = self.params.max_cycles;
                     results.par_extend(
                         band.par_iter()
                             .map_init(GridMaxflow::new, |solver, &win| {
-                                let r = candidates(&grid, win, &level).map(|c| {
-                                    (win, solve_window(&grid, win, &c, &level, cycles, solver))
-                                });
+                                let r = solve_window(&grid, win, &level, self.params, solver);
                                 progress.advance(1);
-                                r
+                                r.map(|out| (win, out))
                             })
                             .flatten(),
                     );
@@ -523,15 +599,14 @@ struct Window {
 }
 
 /// Solves one window as its own grid, with a ring of fixed pixels around it; returns the
-/// window's new labels.
+/// window's new labels, or `None` when nothing in it may change.
 fn solve_window<T: Sample>(
     grid: &Grid,
     win: Window,
-    candidates: &[u8],
     level: &Level<T>,
-    max_cycles: usize,
+    params: &GraphCutParams,
     solver: &mut GridMaxflow,
-) -> Vec<u8> {
+) -> Option<Vec<u8>> {
     let (gw, gh) = (grid.width, grid.height);
     let (rx0, ry0) = (win.x0.saturating_sub(1), win.y0.saturating_sub(1));
     let (rx1, ry1) = ((win.x0 + win.w + 1).min(gw), (win.y0 + win.h + 1).min(gh));
@@ -546,52 +621,96 @@ fn solve_window<T: Sample>(
             free.push(inside && grid.free.is_none_or(|f| f[y * gw + x]));
         }
     }
-    let costs = TileCosts::gather(level, gw, (rx0, ry0, rw, rh), candidates);
     let local = Grid {
         width: rw,
         height: rh,
         labels: &labels,
         free: Some(&free),
     };
-    let out = expand(&local, candidates, &costs, max_cycles, solver);
+    let moves = moves(&local, (rx0, ry0, gw), level, params.candidates)?;
+    let offered: Vec<u8> = moves.iter().map(|m| m.label).collect();
+    let costs = TileCosts::gather(level, gw, (rx0, ry0, rw, rh), &offered);
+    let out = expand(&local, moves, &costs, params.max_cycles, solver);
     let (ox, oy) = (win.x0 - rx0, win.y0 - ry0);
-    (0..win.h)
-        .flat_map(|y| {
-            out[(oy + y) * rw + ox..(oy + y) * rw + ox + win.w]
-                .iter()
-                .copied()
-        })
-        .collect()
+    Some(
+        (0..win.h)
+            .flat_map(|y| {
+                out[(oy + y) * rw + ox..(oy + y) * rw + ox + win.w]
+                    .iter()
+                    .copied()
+            })
+            .collect(),
+    )
 }
 
-/// Labels worth trying in a window: those of its free pixels and their neighbours, and the
-/// sharpest frame of each free pixel. `None` when nothing in the window may change.
-fn candidates<T: Sample>(grid: &Grid, win: Window, level: &Level<T>) -> Option<Vec<u8>> {
-    let mut seen = [false; 256];
+/// The expansion moves of a window's grid (`local`, at `(x0, y0)` of a level `width` wide): each
+/// free pixel is offered its `k` sharpest frames and the labels it and its 4 neighbours hold.
+/// In label order; `None` when no pixel is free.
+fn moves<T: Sample>(
+    local: &Grid,
+    (x0, y0, width): (usize, usize, usize),
+    level: &Level<T>,
+    k: usize,
+) -> Option<Vec<Move>> {
+    let (w, h) = (local.width, local.height);
+    let mut pixels: Vec<Vec<u32>> = vec![Vec::new(); 256];
+    let (mut top, mut offer) = (Vec::new(), Vec::new());
     let mut any_free = false;
-    let (gw, gh) = (grid.width, grid.height);
-    for y in win.y0..win.y0 + win.h {
-        for x in win.x0..win.x0 + win.w {
-            let p = y * gw + x;
-            if !grid.free.is_none_or(|f| f[p]) {
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            if !local.free.is_none_or(|f| f[p]) {
                 continue;
             }
             any_free = true;
-            seen[level.sharpest(p) as usize] = true;
-            seen[grid.labels[p] as usize] = true;
-            if x > 0 {
-                seen[grid.labels[p - 1] as usize] = true;
-            }
-            if x + 1 < gw {
-                seen[grid.labels[p + 1] as usize] = true;
-            }
-            if y > 0 {
-                seen[grid.labels[p - gw] as usize] = true;
-            }
-            if y + 1 < gh {
-                seen[grid.labels[p + gw] as usize] = true;
+            level.sharpest((y0 + y) * width + x0 + x, k, &mut top);
+            offer.clear();
+            offer.extend_from_slice(&top);
+            offer.push(local.labels[p]);
+            let nbrs = [
+                (x > 0, p.wrapping_sub(1)),
+                (x + 1 < w, p + 1),
+                (y > 0, p.wrapping_sub(w)),
+                (y + 1 < h, p + w),
+            ];
+            offer.extend(nbrs.iter().filter(|n| n.0).map(|n| local.labels[n.1]));
+            offer.sort_unstable();
+            offer.dedup();
+            for &l in &offer {
+                pixels[l as usize].push(p as u32);
             }
         }
     }
-    any_free.then(|| (0..=255u8).filter(|&l| seen[l as usize]).collect())
+    any_free.then(|| {
+        (0..=255u8)
+            .zip(pixels)
+            .filter(|(_, px)| !px.is_empty())
+            .map(|(label, pixels)| Move { label, pixels })
+            .collect()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sharpest_frames_come_best_first_ties_to_the_lower_index() {
+        let amps = [3u16, 7, 7, 1, 9];
+        let frames: Vec<Image<u8>> = amps.iter().map(|_| Image::new(1, 1, 1)).collect();
+        let amps = Amps::new(0, amps.iter().map(|&a| vec![a]).collect());
+        let level = Level::new(&frames, &amps, 0.3, &GraphCutParams::default());
+        let mut top = Vec::new();
+        for (k, want) in [
+            (1, vec![4]),
+            (2, vec![4, 1]),
+            (3, vec![4, 1, 2]),
+            (4, vec![4, 1, 2, 0]),
+            (usize::MAX, vec![0, 1, 2, 3, 4]),
+        ] {
+            level.sharpest(0, k, &mut top);
+            assert_eq!(top, want, "k = {k}");
+        }
+        assert_eq!(level.sharpest_labels(1), [4]);
+    }
 }
