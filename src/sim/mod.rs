@@ -11,8 +11,12 @@
 //! * [`scene`] builds the scene (shapes from [`shape`], surfaces from [`texture`]);
 //! * [`optics`] maps depth to defocus sigma; [`pose`] draws hand-held poses;
 //! * [`mod@render`] composites the layers, warps, and adds gain and noise.
+//!
+//! [`flats`] renders another kind of stack: smooth regions where many frames tie, hard for the
+//! labelling.
 
 pub mod bundle;
+pub mod flats;
 pub mod optics;
 pub mod pose;
 pub mod render;
