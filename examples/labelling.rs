@@ -13,13 +13,11 @@
 use anyhow::{bail, Context, Result};
 use focusd::imageio::{load_rgb8, save};
 use focusd::sim::flats::{flats, FlatsParams};
-use focusd::stack::align::{warp_frame, Coverage};
-use focusd::stack::fuse::{fuse, Fused};
+use focusd::stack::align::Coverage;
+use focusd::stack::fuse::{fuse, warp_onto_reference, Fused};
 use focusd::stack::graphcut::{labelling_energy, GraphCutParams};
 use focusd::stack::image::Image;
 use focusd::stack::params::{middle_frame, FuseParams};
-use focusd::stack::register::Placement;
-use focusd::stack::transform::Warp;
 use focusd::stack::{NoProgress, Stage};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -135,33 +133,26 @@ fn compare(frames: Vec<Image<u8>>, runs: usize, align: bool) -> Result<()> {
     Ok(())
 }
 
-/// The frames as the fuse labelled them: warped onto the reference as its alignment says (a
-/// frame registered by inheriting a pose stands in as the reference, covering nothing).
+/// The frames as the fuse labelled them: warped onto the reference by the fuse's own step.
 fn aligned(
     frames: &[Image<u8>],
     fused: &Fused<u8>,
     reference: usize,
 ) -> (Vec<Image<u8>>, Vec<Coverage>) {
+    let mut frames = frames.to_vec();
     let Some(a) = &fused.alignment else {
         let (w, h) = (frames[0].width, frames[0].height);
-        return (frames.to_vec(), vec![Coverage::full(w, h); frames.len()]);
+        let n = frames.len();
+        return (frames, vec![Coverage::full(w, h); n]);
     };
-    let r = &frames[reference];
-    let warped = frames
-        .iter()
-        .enumerate()
-        .map(|(i, f)| match a.registration.how[i] {
-            Placement::Reference | Placement::Inherited { .. } => r.clone(),
-            _ => {
-                let warp = Warp {
-                    affine: a.registration.ref_to_frame[i],
-                    field: a.registration.field[i].clone(),
-                };
-                warp_frame(f, r, &warp, &a.exposure[i]).0
-            }
-        })
-        .collect();
-    (warped, a.coverage.clone())
+    let coverage = warp_onto_reference(
+        &mut frames,
+        &a.registration,
+        &a.exposure,
+        reference,
+        &NoProgress,
+    );
+    (frames, coverage)
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

@@ -218,10 +218,40 @@ fn align<T: Sample>(
     reference: usize,
     progress: &dyn Progress,
 ) -> Alignment {
+    let r = &frames[reference];
+    let exposure: Vec<Vec<Exposure>> = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| match registration.how[i] {
+            Placement::Direct | Placement::Chained { .. } => {
+                estimate_exposure(f, r, &warp_of(&registration, i))
+            }
+            _ => vec![Exposure::SAME; r.channels],
+        })
+        .collect();
+    let coverage = warp_onto_reference(frames, &registration, &exposure, reference, progress);
+    Alignment {
+        registration,
+        exposure,
+        coverage,
+    }
+}
+
+/// Warps every frame onto the reference in place, by its registration with its `exposure`
+/// undone; returns the reference pixels each covers. The fuse's own step, public so that tools
+/// can see the frames as the labelling saw them. A frame registered by inheriting a neighbour's
+/// pose stands in as the reference and covers nothing: too little texture to match means too
+/// little to contribute, and its pose is only a guess.
+pub fn warp_onto_reference<T: Sample>(
+    frames: &mut [Image<T>],
+    registration: &Registration,
+    exposure: &[Vec<Exposure>],
+    reference: usize,
+    progress: &dyn Progress,
+) -> Vec<Coverage> {
     let n = frames.len();
     progress.stage(Stage::Warp, n - 1);
     let (w, h) = (frames[0].width, frames[0].height);
-    let mut exposure = vec![vec![Exposure::SAME; frames[0].channels]; n];
     let mut coverage = vec![Coverage::full(w, h); n];
     let (before, rest) = frames.split_at_mut(reference);
     let (r, after) = rest
@@ -235,26 +265,23 @@ fn align<T: Sample>(
             .map(|(k, f)| (reference + 1 + k, f)),
     ) {
         if let Placement::Inherited { .. } = registration.how[i] {
-            // Too little texture to match means too little to contribute, and its pose is only
-            // a guess: it stands in as the reference and covers nothing.
             f.clone_from(r);
             coverage[i].spans.fill((0, 0));
-            progress.advance(1);
-            continue;
+        } else {
+            let warp = warp_of(registration, i);
+            coverage[i] = warp_frame_into(f, r, &warp, &exposure[i], &mut spare, &mut scratch);
+            std::mem::swap(f, &mut spare);
         }
-        let warp = Warp {
-            affine: registration.ref_to_frame[i],
-            field: registration.field[i].clone(),
-        };
-        exposure[i] = estimate_exposure(f, r, &warp);
-        coverage[i] = warp_frame_into(f, r, &warp, &exposure[i], &mut spare, &mut scratch);
-        std::mem::swap(f, &mut spare);
         progress.advance(1);
     }
-    Alignment {
-        registration,
-        exposure,
-        coverage,
+    coverage
+}
+
+/// Frame `i`'s warp: its affine and local field.
+fn warp_of(registration: &Registration, i: usize) -> Warp {
+    Warp {
+        affine: registration.ref_to_frame[i],
+        field: registration.field[i].clone(),
     }
 }
 
