@@ -100,7 +100,7 @@ fn zipper(img: &Image<u8>) -> u8 {
 }
 
 #[test]
-fn grey_edges_get_less_false_colour_and_zipper() {
+fn grey_edges_get_little_false_colour_and_no_zipper() {
     // A black-to-white edge at a slant (every sub-pixel phase), its ramp `width` px wide, as a
     // sharp lens draws it (a one-pixel step is finer than any Bayer sensor can sample).
     let edge = |slope: f32, width: f32| {
@@ -115,23 +115,27 @@ fn grey_edges_get_less_false_colour_and_zipper() {
             let good = encode(&demosaic(&m));
             let base = encode(&bilinear(&m));
             let mhc = encode(&encoded(&m, malvar));
-            let (fg, fb) = (fringe(&good), fringe(&base));
+            let (fg, fm, fb) = (fringe(&good), fringe(&mhc), fringe(&base));
             eprintln!(
-                "edge {width} px, slope {slope}: false colour {fg}, Malvar-He-Cutler {}, \
-                 bilinear {fb}",
-                fringe(&mhc)
+                "edge {width} px, slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
+                 bilinear {fb}"
             );
+            // At most half bilinear's everywhere; along edges near the sampling axes, which
+            // are most of a picture's, at most half Malvar-He-Cutler's too (measured 1-11
+            // against 7-26 in 8-bit units; on the 45° edges 19-53 against 24-43).
             assert!(
-                fg * 2 <= fb,
-                "width {width} slope {slope}: fringe {fg}, bilinear {fb}"
+                fg * 2 <= fb && (slope == 1.0 || fg * 2 <= fm),
+                "width {width} slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
+                 bilinear {fb}"
             );
             if slope == 0.0 {
-                let (zg, zb) = (zipper(&good), zipper(&base));
-                eprintln!(
-                    "edge {width} px: zipper {zg}, Malvar-He-Cutler {}, bilinear {zb}",
-                    zipper(&mhc)
+                let (zg, zm, zb) = (zipper(&good), zipper(&mhc), zipper(&base));
+                eprintln!("edge {width} px: zipper {zg}, Malvar-He-Cutler {zm}, bilinear {zb}");
+                // Measured 0-1 against 7-18 and 18-45: two steps of 8 bits at most.
+                assert!(
+                    zg <= 2 && zg < zm,
+                    "width {width}: zipper {zg}, Malvar-He-Cutler {zm}, bilinear {zb}"
                 );
-                assert!(zg * 2 <= zb, "width {width}: zipper {zg}, bilinear {zb}");
             }
         }
     }
