@@ -122,7 +122,7 @@ fn grey_edges_get_little_false_colour_and_no_zipper() {
             );
             // At most half bilinear's everywhere; along edges near the sampling axes, which
             // are most of a picture's, at most half Malvar-He-Cutler's too (measured 1-11
-            // against 7-26 in 8-bit units; on the 45° edges 19-53 against 24-43).
+            // against 7-26 in 8-bit units; on the 45° edges 30-53 against 24-43).
             assert!(
                 fg * 2 <= fb && (slope == 1.0 || fg * 2 <= fm),
                 "width {width} slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
