@@ -297,13 +297,15 @@ fn residual_fill(
         for (s, d) in win.iter_mut().zip(&down) {
             along(d, s);
         }
-        let [k, sg, sv, sll, slv] = &win;
-        let (a, b) = (&mut a[y * w..(y + 1) * w], &mut b[y * w..(y + 1) * w]);
-        for x in RADIUS..w - RADIUS {
-            if k[x] > 0.0 {
-                a[x] = slv[x] / (sll[x] + EPS * k[x]);
-                b[x] = (sv[x] - a[x] * sg[x]) / k[x];
-            }
+        // Without branches or bounds checks, so that it vectorises: every window of the strip
+        // holds samples, and one without (k = 0) would give a = b = 0.
+        let inner = RADIUS..w - RADIUS;
+        let [k, sg, sv, sll, slv] = win.each_ref().map(|s| &s[inner.clone()]);
+        let a = &mut a[y * w..(y + 1) * w][inner.clone()];
+        let b = &mut b[y * w..(y + 1) * w][inner];
+        for x in 0..a.len() {
+            a[x] = slv[x] / (sll[x] + EPS * k[x]).max(f32::MIN_POSITIVE);
+            b[x] = (sv[x] - a[x] * sg[x]) / k[x].max(1.0);
         }
     }
     // The coefficients averaged over each window, applied to the guide.
@@ -333,16 +335,23 @@ fn residual_fill(
             r[x] = on[x] * (v[x] - f[x]);
         }
     }
-    for i in w + 1..n - w - 1 {
-        let cross = res[i - 1] + res[i + 1] + res[i - w] + res[i + w];
-        fit[i] += res[i]
-            + match lattice {
-                Lattice::Grid => {
-                    0.5 * cross
-                        + 0.25 * (res[i - w - 1] + res[i - w + 1] + res[i + w - 1] + res[i + w + 1])
+    for y in 1..h - 1 {
+        let (up, mid, down) = (row(&res, w, y - 1), row(&res, w, y), row(&res, w, y + 1));
+        let f = &mut fit[y * w..(y + 1) * w];
+        match lattice {
+            Lattice::Grid => {
+                for x in 1..w - 1 {
+                    let cross = mid[x - 1] + mid[x + 1] + up[x] + down[x];
+                    let diagonal = up[x - 1] + up[x + 1] + down[x - 1] + down[x + 1];
+                    f[x] += mid[x] + 0.5 * cross + 0.25 * diagonal;
                 }
-                Lattice::Quincunx => 0.25 * cross,
-            };
+            }
+            Lattice::Quincunx => {
+                for x in 1..w - 1 {
+                    f[x] += mid[x] + 0.25 * (mid[x - 1] + mid[x + 1] + up[x] + down[x]);
+                }
+            }
+        }
     }
     fit
 }
