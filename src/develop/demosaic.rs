@@ -178,12 +178,13 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder) -> [Vec<f32>; 
         })
     };
     let (red, green, blue) = (sites(0), sites(1), sites(2));
+    let mut scratch = Scratch::new(m.len());
     let g = hamilton_adams(m, w, order);
-    let r = residual_fill(&g, m, w, &red, Lattice::Grid);
-    let b = residual_fill(&g, m, w, &blue, Lattice::Grid);
+    let r = residual_fill(&g, m, w, &red, Lattice::Grid, &mut scratch);
+    let b = residual_fill(&g, m, w, &blue, Lattice::Grid, &mut scratch);
     // Green again, at red samples with red as the guide, at blue ones with blue.
-    let mut g = residual_fill(&r, m, w, &green, Lattice::Quincunx);
-    let from_b = residual_fill(&b, m, w, &green, Lattice::Quincunx);
+    let mut g = residual_fill(&r, m, w, &green, Lattice::Quincunx, &mut scratch);
+    let from_b = residual_fill(&b, m, w, &green, Lattice::Quincunx, &mut scratch);
     for (y, (row, other)) in g
         .chunks_exact_mut(w)
         .zip(from_b.chunks_exact(w))
@@ -195,8 +196,8 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder) -> [Vec<f32>; 
             }
         }
     }
-    let r = residual_fill(&g, m, w, &red, Lattice::Grid);
-    let b = residual_fill(&g, m, w, &blue, Lattice::Grid);
+    let r = residual_fill(&g, m, w, &red, Lattice::Grid, &mut scratch);
+    let b = residual_fill(&g, m, w, &blue, Lattice::Grid, &mut scratch);
     [r, g, b]
 }
 
@@ -231,6 +232,30 @@ fn hamilton_adams(m: &[f32], w: usize, order: BayerOrder) -> Vec<f32> {
     g
 }
 
+/// Planes `residual_fill` needs only while it runs, allocated once per strip: with
+/// `malloc::tune`'s setting every such plane is a mapping of its own, whose fresh pages cost
+/// more to fault in and clear than to fill (a quarter of a frame's development, measured).
+struct Scratch {
+    lg: Vec<f32>,
+    lv: Vec<f32>,
+    a: Vec<f32>,
+    b: Vec<f32>,
+    res: Vec<f32>,
+}
+
+impl Scratch {
+    fn new(n: usize) -> Scratch {
+        let plane = || vec![0.0f32; n];
+        Scratch {
+            lg: plane(),
+            lv: plane(),
+            a: plane(),
+            b: plane(),
+            res: plane(),
+        }
+    }
+}
+
 /// How a colour's samples lie: red and blue every other row and column, green in a quincunx.
 #[derive(Clone, Copy)]
 enum Lattice {
@@ -249,33 +274,28 @@ fn residual_fill(
     w: usize,
     sites: &[Vec<f32>; 2],
     lattice: Lattice,
+    scratch: &mut Scratch,
 ) -> Vec<f32> {
     let (n, h) = (m.len(), m.len() / w);
     fn row(p: &[f32], w: usize, y: usize) -> &[f32] {
         &p[y * w..(y + 1) * w]
     }
-    // The fit a·guide + b in each window: count, sums of guide and samples, of the guide
-    // squared and of their product, over the window's samples.
     // The slope of the fit in each window from the colour's and the guide's Laplacians (taken
     // among the colour's samples, which are two apart on the grid and diagonal neighbours in
     // the quincunx), its offset from their means: count, sums of guide and samples, of the
     // guide's Laplacian squared and of the product of the two Laplacians, over the window's
     // samples.
-    let laplacian = |p: &[f32]| -> Vec<f32> {
-        let mut l = vec![0.0f32; n];
-        let (s, d) = match lattice {
-            Lattice::Grid => (2, 2 * w),
-            Lattice::Quincunx => (w - 1, w + 1),
-        };
+    let Scratch { lg, lv, a, b, res } = scratch;
+    let (s, d) = match lattice {
+        Lattice::Grid => (2, 2 * w),
+        Lattice::Quincunx => (w - 1, w + 1),
+    };
+    for (l, p) in [(&mut *lg, guide), (&mut *lv, m)] {
         for i in d..n - d {
             l[i] = 4.0 * p[i] - p[i - s] - p[i + s] - p[i - d] - p[i + d];
         }
-        l
-    };
-    let (lg, lv) = (laplacian(guide), laplacian(m));
+    }
     let sampled = sites.clone().map(|s| s.contains(&1.0));
-    let mut a = vec![0.0f32; n];
-    let mut b = vec![0.0f32; n];
     let mut down: [Vec<f32>; 5] = std::array::from_fn(|_| vec![0.0; w]);
     let mut win: [Vec<f32>; 5] = std::array::from_fn(|_| vec![0.0; w]);
     for y in RADIUS..h - RADIUS {
@@ -283,7 +303,7 @@ fn residual_fill(
         // Red and blue have no samples on every other row: nothing to add.
         for j in (y - RADIUS..=y + RADIUS).filter(|j| sampled[j % 2]) {
             let (on, g, v) = (&sites[j % 2][..w], row(guide, w, j), row(m, w, j));
-            let (lg, lv) = (row(&lg, w, j), row(&lv, w, j));
+            let (lg, lv) = (row(lg, w, j), row(lv, w, j));
             let [d0, d1, d2, d3, d4] = &mut down;
             for x in 0..w {
                 let (k, kl) = (on[x], on[x] * lg[x]);
@@ -316,8 +336,8 @@ fn residual_fill(
         da.fill(0.0);
         db.fill(0.0);
         for j in y - RADIUS..=y + RADIUS {
-            da.iter_mut().zip(row(&a, w, j)).for_each(|(s, v)| *s += v);
-            db.iter_mut().zip(row(&b, w, j)).for_each(|(s, v)| *s += v);
+            da.iter_mut().zip(row(a, w, j)).for_each(|(s, v)| *s += v);
+            db.iter_mut().zip(row(b, w, j)).for_each(|(s, v)| *s += v);
         }
         along(da, wa);
         along(db, wb);
@@ -328,7 +348,6 @@ fn residual_fill(
     }
     // The residuals at the samples, zero elsewhere, interpolated bilinearly: each pixel gets
     // its own sample's or the mean of its two or four nearest.
-    let mut res = vec![0.0f32; n];
     for (y, r) in res.chunks_exact_mut(w).enumerate() {
         let (on, f, v) = (&sites[y % 2][..w], row(&fit, w, y), row(m, w, y));
         for x in 0..w {
@@ -336,7 +355,7 @@ fn residual_fill(
         }
     }
     for y in 1..h - 1 {
-        let (up, mid, down) = (row(&res, w, y - 1), row(&res, w, y), row(&res, w, y + 1));
+        let (up, mid, down) = (row(res, w, y - 1), row(res, w, y), row(res, w, y + 1));
         let f = &mut fit[y * w..(y + 1) * w];
         match lattice {
             Lattice::Grid => {
