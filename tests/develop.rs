@@ -1,78 +1,140 @@
+//! Raw frames developed and fused, against the simulator's ground truth: a stack simulated in
+//! linear light is mosaicked (RGGB, as a sensor records it) and developed.
+//!
 //! Whether raw frames may be developed to 8-bit sRGB one by one and then fused, or must be
-//! fused in linear light and encoded at the end (issue 15 item 4's decision), measured: a
-//! stack simulated in linear light is mosaicked (RGGB, as a sensor records it) and developed
-//! both ways; each result is compared with the all-in-focus truth. Encoding first must cost
-//! under 1 dB. (Measured 2 December 2026: no difference, 27.06 against 27.07 dB and 26.38
-//! against 26.35 dB; fusing the simulator's RGB frames, which no mosaic sampled, gives about
-//! 3 dB more either way: the demosaic's loss, printed here and not part of the decision.)
+//! fused in linear light and encoded at the end (issue 15 item 4's decision): encoding first
+//! must cost under 1 dB. (Measured 2 December 2026: no difference, 27.06 against 27.07 dB and
+//! 26.38 against 26.35 dB.)
+//!
+//! And how much the mosaic costs the fused picture: fusing the developed mosaics against
+//! fusing the simulator's RGB frames, which no mosaic sampled. Issue 15 asks for 1 dB; measured
+//! 3 December 2026 (seeds 5 and 17): 1.85 and 1.88 dB short on the simulator's sharp frames,
+//! 1.38 and 1.50 dB through a 0.5 px lens blur (Malvar-He-Cutler, before: about 3 and 2.3 dB).
+//! Not met, and not within reach of tuning the demosaic: the fused error is the fusion's own
+//! (the RGB frames' MSE) plus the demosaic's, which comes to what one frame's demosaic measures
+//! alone (33 dB sharp, 36-37 dB blurred, as in the unit tests). Within 1 dB would need the
+//! demosaic at about 36 dB on sharp frames and 38 dB on blurred ones. The test guards what is
+//! reached.
 
 use focusd::develop::{encode, srgb_decode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::sim::{render, SimParams};
+use focusd::stack::blur::gaussian_blur_channels;
 use focusd::stack::fuse::fuse;
 use focusd::stack::image::Image;
 use focusd::stack::metrics::psnr;
 use focusd::stack::params::FuseParams;
 use focusd::stack::NoProgress;
 
-#[test]
-fn developing_each_frame_before_fusing_costs_under_1_db() {
-    let aligned = FuseParams {
+/// A simulated stack's frames as mosaics, the same frames in RGB, and the truth; all through a
+/// Gaussian lens blur of `sigma` px (none at 0) applied in linear light.
+struct Stack {
+    mosaics: Vec<Mosaic>,
+    rgb: Vec<Image<u8>>,
+    truth: Image<u8>,
+}
+
+fn stack(seed: u64, sigma: f32) -> Stack {
+    let s = render(&SimParams {
+        width: 256,
+        height: 192,
+        planes: 5,
+        seed,
+        linear_light: true,
+        ..SimParams::default()
+    });
+    let linear = |f: &Image<u8>| {
+        let lin = Image::from_vec(
+            f.width,
+            f.height,
+            3,
+            f.data
+                .iter()
+                .map(|&v| srgb_decode(f32::from(v) / 255.0))
+                .collect(),
+        );
+        gaussian_blur_channels(&lin, sigma)
+    };
+    let frames: Vec<Image<f32>> = s.frames.iter().map(linear).collect();
+    Stack {
+        mosaics: frames
+            .iter()
+            .map(|f| Mosaic::sample(f, BayerOrder::Rggb))
+            .collect(),
+        rgb: frames.iter().map(encode).collect(),
+        truth: encode(&linear(&s.truth)),
+    }
+}
+
+fn aligned() -> FuseParams {
+    FuseParams {
         align: None,
         ..FuseParams::default()
-    };
+    }
+}
+
+/// The simulator has no colour cast: white balance locked at 1, no colour matrix.
+fn developer() -> Developer {
+    Developer {
+        black_level: 0,
+        matrix: IDENTITY,
+        white_balance: Some([1.0; 3]),
+    }
+}
+
+#[test]
+fn developing_each_frame_before_fusing_costs_under_1_db() {
     for seed in [5u64, 17] {
-        let s = render(&SimParams {
-            width: 256,
-            height: 192,
-            planes: 5,
-            seed,
-            linear_light: true,
-            ..SimParams::default()
-        });
-        // The simulator has no colour cast: white balance locked at 1, no colour matrix.
-        let mut dev = Developer {
-            black_level: 0,
-            matrix: IDENTITY,
-            white_balance: Some([1.0; 3]),
-        };
-        let mosaics: Vec<Mosaic> = s
-            .frames
-            .iter()
-            .map(|f| {
-                let linear = Image::from_vec(
-                    f.width,
-                    f.height,
-                    3,
-                    f.data
-                        .iter()
-                        .map(|&v| srgb_decode(f32::from(v) / 255.0))
-                        .collect(),
-                );
-                Mosaic::sample(&linear, BayerOrder::Rggb)
-            })
-            .collect();
+        let s = stack(seed, 0.0);
+        let mut dev = developer();
         // Each frame developed to 8-bit sRGB, then fused (what focusd does).
-        let encoded: Vec<Image<u8>> = mosaics.iter().map(|m| dev.develop(m.clone())).collect();
-        let first = fuse(encoded, &aligned, &NoProgress).expect("fuses");
+        let encoded: Vec<Image<u8>> = s.mosaics.iter().map(|m| dev.develop(m.clone())).collect();
+        let first = fuse(encoded, &aligned(), &NoProgress).expect("fuses");
         // Each frame developed to 16-bit linear light, fused, encoded at the end.
-        let linear: Vec<Image<u16>> = mosaics
+        let linear: Vec<Image<u16>> = s
+            .mosaics
             .iter()
             .map(|m| dev.develop_linear(m.clone()).convert::<u16>())
             .collect();
-        let last = fuse(linear, &aligned, &NoProgress).expect("fuses");
+        let last = fuse(linear, &aligned(), &NoProgress).expect("fuses");
         let last = encode(&last.image.convert::<f32>());
-        // The simulator's RGB frames: what a sensor without a mosaic would give.
-        let rgb = fuse(s.frames.clone(), &aligned, &NoProgress).expect("fuses");
         let db = |img: &Image<u8>| psnr(img, &s.truth, 4);
-        let (first, last, rgb) = (db(&first.image), db(&last), db(&rgb.image));
+        let (first, last) = (db(&first.image), db(&last));
         eprintln!(
             "seed {seed}: developed then fused {first:.2} dB, fused in linear light then encoded \
-             {last:.2} dB; the RGB frames fused {rgb:.2} dB"
+             {last:.2} dB"
         );
         assert!(
             first >= last - 1.0,
             "seed {seed}: encoding before fusing costs {:.2} dB ({first:.2} against {last:.2})",
             last - first
         );
+    }
+}
+
+#[test]
+fn fusing_developed_mosaics_comes_within_2_db_of_fusing_rgb_frames_1_6_db_through_a_blur() {
+    for seed in [5u64, 17] {
+        for sigma in [0.0, 0.5] {
+            let s = stack(seed, sigma);
+            let mut dev = developer();
+            let developed: Vec<Image<u8>> =
+                s.mosaics.iter().map(|m| dev.develop(m.clone())).collect();
+            let mosaic = fuse(developed, &aligned(), &NoProgress).expect("fuses");
+            let rgb = fuse(s.rgb, &aligned(), &NoProgress).expect("fuses");
+            let db = |img: &Image<u8>| psnr(img, &s.truth, 4);
+            let (mosaic, rgb) = (db(&mosaic.image), db(&rgb.image));
+            eprintln!(
+                "seed {seed} blur {sigma}: developed mosaics fused {mosaic:.2} dB, RGB frames \
+                 fused {rgb:.2} dB, {:.2} dB short",
+                rgb - mosaic
+            );
+            let allowed = if sigma > 0.0 { 1.6 } else { 2.0 };
+            assert!(
+                mosaic >= rgb - allowed,
+                "seed {seed} blur {sigma}: {mosaic:.2} dB, {:.2} dB short of the RGB frames' \
+                 {rgb:.2} dB",
+                rgb - mosaic
+            );
+        }
     }
 }

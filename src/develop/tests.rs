@@ -1,7 +1,8 @@
 use super::demosaic::demosaic;
-use super::demosaic::tests::{bilinear, bilinear_encoded};
+use super::demosaic::tests::{bilinear, encoded, malvar};
 use super::*;
 use crate::sim::{self, SimParams};
+use crate::stack::blur::gaussian_blur_channels;
 use crate::stack::metrics::psnr;
 
 fn linear(img: &Image<u8>) -> Image<f32> {
@@ -45,24 +46,32 @@ fn samples_become_linear_light_above_the_black_level() {
 }
 
 #[test]
-fn demosaic_beats_bilinear_by_more_than_2_db_on_simulated_scenes() {
+fn demosaic_beats_bilinear_by_2_db_and_malvar_by_1_db_on_simulated_scenes() {
+    // The simulator's truths are sharper than a phone lens draws (12-15 % of their spectral
+    // energy above 0.25 cycles/px, real frames at most 10.6 %), so also through a 0.5 px blur.
     for (i, truth) in truths().iter().enumerate() {
-        let lin = linear(truth);
-        for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
-            let m = Mosaic::sample(&lin, order);
-            let good = psnr(&encode(&demosaic(&m)), truth, 2);
-            // What focusd did before: bilinear on the raw (linear) samples.
-            let before = psnr(&encode(&bilinear(&m)), truth, 2);
-            let same_domain = psnr(&encode(&bilinear_encoded(&m)), truth, 2);
-            eprintln!(
-                "scene {i} {order:?}: Malvar-He-Cutler on encoded samples {good:.2} dB, \
-                 bilinear {before:.2} dB (on encoded samples {same_domain:.2} dB)"
-            );
-            assert!(
-                good >= before.max(same_domain) + 2.0,
-                "scene {i} {order:?}: {good:.2} dB is not 2 dB above bilinear's {before:.2} and \
-                 {same_domain:.2} dB"
-            );
+        for sigma in [0.0, 0.5] {
+            let lin = gaussian_blur_channels(&linear(truth), sigma);
+            let truth = encode(&lin);
+            for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
+                let m = Mosaic::sample(&lin, order);
+                let db = |rgb: Image<f32>| psnr(&encode(&rgb), &truth, 2);
+                let good = db(demosaic(&m));
+                let mhc = db(encoded(&m, malvar));
+                // What focusd did first: bilinear on the raw (linear) samples.
+                let before = db(bilinear(&m));
+                let same_domain = db(encoded(&m, bilinear));
+                eprintln!(
+                    "scene {i} blur {sigma} {order:?}: residual interpolation {good:.2} dB, \
+                     Malvar-He-Cutler {mhc:.2} dB, bilinear {before:.2} dB (on encoded samples \
+                     {same_domain:.2} dB)"
+                );
+                assert!(
+                    good >= before.max(same_domain) + 2.0 && good >= mhc + 1.0,
+                    "scene {i} blur {sigma} {order:?}: {good:.2} dB against bilinear's \
+                     {before:.2} and {same_domain:.2} dB, Malvar-He-Cutler's {mhc:.2} dB"
+                );
+            }
         }
     }
 }
@@ -91,7 +100,7 @@ fn zipper(img: &Image<u8>) -> u8 {
 }
 
 #[test]
-fn grey_edges_get_less_false_colour_and_zipper() {
+fn grey_edges_get_little_false_colour_and_no_zipper() {
     // A black-to-white edge at a slant (every sub-pixel phase), its ramp `width` px wide, as a
     // sharp lens draws it (a one-pixel step is finer than any Bayer sensor can sample).
     let edge = |slope: f32, width: f32| {
@@ -105,16 +114,28 @@ fn grey_edges_get_less_false_colour_and_zipper() {
             let m = Mosaic::sample(&edge(slope, width), BayerOrder::Rggb);
             let good = encode(&demosaic(&m));
             let base = encode(&bilinear(&m));
-            let (fg, fb) = (fringe(&good), fringe(&base));
-            eprintln!("edge {width} px, slope {slope}: false colour {fg}, bilinear {fb}");
+            let mhc = encode(&encoded(&m, malvar));
+            let (fg, fm, fb) = (fringe(&good), fringe(&mhc), fringe(&base));
+            eprintln!(
+                "edge {width} px, slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
+                 bilinear {fb}"
+            );
+            // At most half bilinear's everywhere; along edges near the sampling axes, which
+            // are most of a picture's, at most half Malvar-He-Cutler's too (measured 1-11
+            // against 7-26 in 8-bit units; on the 45° edges 30-53 against 24-43).
             assert!(
-                fg * 2 <= fb,
-                "width {width} slope {slope}: fringe {fg}, bilinear {fb}"
+                fg * 2 <= fb && (slope == 1.0 || fg * 2 <= fm),
+                "width {width} slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
+                 bilinear {fb}"
             );
             if slope == 0.0 {
-                let (zg, zb) = (zipper(&good), zipper(&base));
-                eprintln!("edge {width} px: zipper {zg}, bilinear {zb}");
-                assert!(zg * 2 <= zb, "width {width}: zipper {zg}, bilinear {zb}");
+                let (zg, zm, zb) = (zipper(&good), zipper(&mhc), zipper(&base));
+                eprintln!("edge {width} px: zipper {zg}, Malvar-He-Cutler {zm}, bilinear {zb}");
+                // Measured 0-1 against 7-18 and 18-45: two steps of 8 bits at most.
+                assert!(
+                    zg <= 2 && zg < zm,
+                    "width {width}: zipper {zg}, Malvar-He-Cutler {zm}, bilinear {zb}"
+                );
             }
         }
     }
@@ -126,7 +147,7 @@ fn white_balance_is_measured_once_and_locked() {
     let light = [1.6f32, 1.0, 0.6];
     let scene = |level: f32| {
         Image::from_fn(32, 32, 3, move |x, y, c| {
-            let grey = level * (0.3 + 0.4 * (((x / 4 + y / 4) % 2) as f32));
+            let grey = level * (0.3 + 0.4 * (((x / 8 + y / 8) % 2) as f32));
             grey * light[c] * 0.5
         })
     };
@@ -138,8 +159,16 @@ fn white_balance_is_measured_once_and_locked() {
     let mut dev = Developer::new(0, IDENTITY);
     let a = dev.develop_linear(first);
     assert_eq!(dev.white_balance, Some(gains));
-    // Grey again: the channels' means agree.
-    let mean = |c: usize| a.data.iter().skip(c).step_by(3).sum::<f32>() / 1024.0;
+    // Grey again: the channels' means agree, inside the blocks (at their edges the demosaic's
+    // own errors, which are not symmetric in linear light, would mix in).
+    let inside = |i: &usize| (2..6).contains(&(i % 32 % 8)) && (2..6).contains(&(i / 32 % 8));
+    let mean = |c: usize| {
+        let v: Vec<f32> = (0..1024)
+            .filter(inside)
+            .map(|i| a.data[i * 3 + c])
+            .collect();
+        v.iter().sum::<f32>() / v.len() as f32
+    };
     assert!((mean(0) / mean(1) - 1.0).abs() < 0.01 && (mean(2) / mean(1) - 1.0).abs() < 0.01);
     // A later frame of a bluish subject keeps the first frame's gains: no flicker.
     let bluish = Image::from_fn(32, 32, 3, |_, _, c| [0.1f32, 0.2, 0.5][c]);

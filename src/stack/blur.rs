@@ -38,6 +38,16 @@ pub fn gaussian_blur(src: &Plane, sigma: f32) -> Plane {
     convolve_separable(src, &gaussian_kernel(sigma))
 }
 
+/// Each channel of `img` through `gaussian_blur`: a lens's blur on a colour frame.
+pub fn gaussian_blur_channels(img: &Plane, sigma: f32) -> Plane {
+    let planes: Vec<Plane> = img
+        .to_planes()
+        .iter()
+        .map(|p| gaussian_blur(p, sigma))
+        .collect();
+    Plane::from_planes(&planes)
+}
+
 /// Convolves a single-channel plane with a symmetric odd-length kernel along x then y.
 pub fn convolve_separable(src: &Plane, k: &[f32]) -> Plane {
     debug_assert_eq!(src.channels, 1);
