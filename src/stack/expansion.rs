@@ -52,6 +52,19 @@ fn add_unary(g: &mut GridMaxflow, i: usize, cost0: i32, cost1: i32) {
     }
 }
 
+/// The 4-connected neighbours of pixel `p` of a `w`×`h` grid.
+pub fn neighbours(w: usize, h: usize, p: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (p % w, p / w);
+    [
+        (x + 1 < w).then(|| p + 1),
+        (y + 1 < h).then(|| p + w),
+        (x > 0).then(|| p - 1),
+        (y > 0).then(|| p - w),
+    ]
+    .into_iter()
+    .flatten()
+}
+
 /// An expansion move to try: a label and the free pixels allowed to take it.
 pub struct Move {
     pub label: u8,
@@ -89,17 +102,7 @@ pub fn expand(
     let mut step = 0u32;
     let mut changed_at = vec![0u32; n];
     let mut failed_at = vec![0u32; moves.len()];
-    let neighbours = |p: usize| {
-        let (x, y) = (p % w, p / w);
-        [
-            (x + 1 < w).then(|| p + 1),
-            (y + 1 < h).then(|| p + w),
-            (x > 0).then(|| p - 1),
-            (y > 0).then(|| p - w),
-        ]
-        .into_iter()
-        .flatten()
-    };
+    let neighbours = |p: usize| neighbours(w, h, p);
     for _ in 0..max_cycles {
         let mut cycle_changed = false;
         for (k, m) in moves.iter_mut().enumerate() {
@@ -428,17 +431,7 @@ mod tests {
                 if std::mem::replace(&mut reached[p], true) {
                     continue;
                 }
-                let (x, y) = (p % w, p / w);
-                for (ok, q) in [
-                    (x + 1 < w, p + 1),
-                    (y + 1 < h, p + w),
-                    (x > 0, p.wrapping_sub(1)),
-                    (y > 0, p.wrapping_sub(w)),
-                ] {
-                    if ok && out[q] == 3 {
-                        stack.push(q);
-                    }
-                }
+                stack.extend(neighbours(w, h, p).filter(|&q| out[q] == 3));
             }
             for p in 0..w * h {
                 assert!(out[p] != 3 || reached[p], "pixel {p} took 3 unconnected");

@@ -12,7 +12,7 @@
 
 use super::align::Coverage;
 use super::blur::downsample_area;
-use super::expansion::{energy, expand, Costs, Grid, Move};
+use super::expansion::{energy, expand, neighbours, Costs, Grid, Move};
 use super::focus::{
     downsample_amplitude, focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE,
 };
@@ -667,13 +667,7 @@ fn moves<T: Sample>(
             offer.clear();
             offer.extend_from_slice(&top);
             offer.push(local.labels[p]);
-            let nbrs = [
-                (x > 0, p.wrapping_sub(1)),
-                (x + 1 < w, p + 1),
-                (y > 0, p.wrapping_sub(w)),
-                (y + 1 < h, p + w),
-            ];
-            offer.extend(nbrs.iter().filter(|n| n.0).map(|n| local.labels[n.1]));
+            offer.extend(neighbours(w, h, p).map(|q| local.labels[q]));
             offer.sort_unstable();
             offer.dedup();
             for &l in &offer {
