@@ -11,6 +11,7 @@ pub mod image;
 pub mod maxflow;
 pub mod memory;
 pub mod metrics;
+pub mod order;
 pub mod params;
 pub mod pyramid;
 pub mod register;
