@@ -184,6 +184,7 @@ pub fn run(
     if !fused.memory.fits() {
         tracing::warn!("{}; raise [fuse] memory_mb", fused.memory);
     }
+    tracing::info!("focus order: {}", fused.order);
     if progress.cancelled() {
         return Err(FuseError::Cancelled.into());
     }

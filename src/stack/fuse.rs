@@ -5,6 +5,7 @@ use super::compose::{compose, Select};
 use super::graphcut::label_stack;
 use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
+use super::order::{focus_order, OrderEvidence};
 use super::params::{FuseParams, Method};
 use super::register::{register_with, Placement, RegisterError, Registration};
 use super::transform::Warp;
@@ -60,6 +61,9 @@ pub struct Fused<T> {
     pub image: Image<T>,
     /// Per pixel, the frame the output was taken from.
     pub labels: Vec<u8>,
+    /// Which way the frames were focused, as their occlusion edges tell (`Order::Unknown` when
+    /// too few edges tell: then nearest first, the documented input order, is assumed).
+    pub order: OrderEvidence,
     /// `None` when the frames were taken as aligned.
     pub alignment: Option<Alignment>,
     /// The rectangle of the reference frame the output shows, when cropped.
@@ -151,7 +155,7 @@ pub fn fuse<T: Sample>(
             &full
         }
     };
-    let (mut image, mut labels) = match params.method {
+    let (mut image, mut labels, order) = match params.method {
         Method::GraphCut => {
             let labels = label_stack(
                 &frames,
@@ -161,6 +165,7 @@ pub fn fuse<T: Sample>(
                 plan.label_rows,
                 progress,
             );
+            let order = focus_order(&frames, &labels, coverage);
             lap(Stage::Labels, &mut timings);
             go_on(progress)?;
             let (image, _) = compose(
@@ -171,13 +176,14 @@ pub fn fuse<T: Sample>(
             );
             lap(Stage::Compose, &mut timings);
             go_on(progress)?;
-            (image, labels)
+            (image, labels, order)
         }
         Method::Pyramid => {
-            let r = compose(&frames, Select::MaxContrast, plan.band_rows, progress);
+            let (image, labels) = compose(&frames, Select::MaxContrast, plan.band_rows, progress);
+            let order = focus_order(&frames, &labels, coverage);
             lap(Stage::Pyramid, &mut timings);
             go_on(progress)?;
-            r
+            (image, labels, order)
         }
     };
     let crop = match (&alignment, params.crop) {
@@ -193,6 +199,7 @@ pub fn fuse<T: Sample>(
     Ok(Fused {
         image,
         labels,
+        order,
         alignment,
         crop,
         timings,
