@@ -10,6 +10,8 @@ use focusd::stack::image::Image;
 use focusd::stack::order::{Order, OrderEvidence};
 use focusd::stack::params::{middle_frame, FuseParams};
 use focusd::stack::NoProgress;
+use std::path::{Path, PathBuf};
+use std::process::Command;
 
 fn order_of(frames: Vec<Image<u8>>, align: bool) -> OrderEvidence {
     let mut params = FuseParams {
@@ -75,4 +77,42 @@ fn stacks_without_depth_steps_decide_nothing() {
     let e = order_of(plane, false);
     assert_eq!(e.order, Order::Unknown, "single plane: {e:?}");
     assert_eq!(e.order.assumed(), Order::NearestFirst);
+}
+
+/// `focusd fuse` says in its log which order it found: the committed aligned stack (nearest
+/// first) as given and reversed.
+#[test]
+fn the_fuse_log_names_the_order() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/aligned");
+    let frames: Vec<PathBuf> = (0..6)
+        .map(|i| dir.join(format!("frame_{i:02}.jpg")))
+        .collect();
+    let out = tempfile::tempdir().unwrap();
+    let log = |frames: &mut dyn Iterator<Item = &PathBuf>| {
+        let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+            .args(["fuse", "--no-align", "-o"])
+            .arg(out.path().join("out.png"))
+            .args(frames)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{err}");
+        err
+    };
+    let order_line = |err: &str| {
+        err.lines()
+            .find(|l| l.starts_with("  order "))
+            .unwrap_or_else(|| panic!("no order line in {err}"))
+            .to_string()
+    };
+    let forward = order_line(&log(&mut frames.iter()));
+    assert!(
+        forward.starts_with("  order nearest focus first ("),
+        "{forward}"
+    );
+    let reversed = order_line(&log(&mut frames.iter().rev()));
+    assert!(
+        reversed.starts_with("  order farthest focus first ("),
+        "{reversed}"
+    );
 }
