@@ -201,6 +201,9 @@ fn capture_replays_a_bundle_into_an_image_and_a_report() {
     assert_eq!(r["memory"]["within_budget"], true, "{r}");
     let peak = r["memory"]["estimated_peak_mib"].as_u64().unwrap();
     assert!(peak > 0 && peak <= 512, "{r}");
+    // The sweep runs nearest first, and the occlusion edges say so.
+    let order = r["focus_order"].as_str().unwrap();
+    assert!(order.starts_with("nearest focus first ("), "{r}");
     // The fused image is close to the truth, and closer than a stack with the shaken take in it.
     let truth = load(&bundle_dir("shaken").join("truth.png"));
     let fused = psnr(&load(&out), &truth, 0);

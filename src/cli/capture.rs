@@ -80,6 +80,7 @@ pub fn run(a: &CaptureArgs) -> Result<()> {
     bar.finish();
     let report = report?;
     print_planes(&report.planes);
+    eprintln!("  order {}", report.focus_order);
     let m = &report.memory;
     let raise = "raise [fuse] memory_mb";
     eprintln!(

@@ -113,6 +113,8 @@ pub struct Report {
     /// Wall time of `capture`, `register`, `fuse` and `save`, ms.
     pub timings_ms: BTreeMap<&'static str, f64>,
     pub memory: MemoryReport,
+    /// Which way the frames were focused, as the occlusion edges tell (`OrderEvidence`'s line).
+    pub focus_order: String,
     pub output: String,
 }
 
@@ -206,6 +208,7 @@ pub fn run(
         sweep_ms: (ended - started) as f64 * 1e-6,
         timings_ms: timings,
         memory: MemoryReport::from(&fused.memory),
+        focus_order: fused.order.to_string(),
         output: output.display().to_string(),
     };
     if let Some(path) = report {
