@@ -218,6 +218,9 @@ fn run_typed<T: Sample>(
     if let Some(al) = &fused.alignment {
         report_alignment(al, &a.frames);
     }
+    if let Some(s) = &fused.spill {
+        eprintln!("  spill  {s}");
+    }
 
     let t = Instant::now();
     let mut bytes = io::encode(&fused.image, io::format_for(&a.output)?, a.settings.quality)?;

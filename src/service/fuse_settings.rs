@@ -42,6 +42,11 @@ pub struct FuseSettings {
     /// background by parallax in a hand-held sweep.
     #[arg(long = "no-local-registration", action = clap::ArgAction::SetFalse)]
     pub local_registration: bool,
+    /// Halo removal (`--no-spill-removal` turns it off): where a near object meets the
+    /// background, its defocused colour is taken out of the frames focused farther before
+    /// they are composed (graph cut only).
+    #[arg(long = "no-spill-removal", action = clap::ArgAction::SetFalse)]
+    pub spill_removal: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -62,6 +67,7 @@ impl Default for FuseSettings {
             crop: false,
             memory_mb: (DEFAULT_BUDGET >> 20) as u32,
             local_registration: true,
+            spill_removal: true,
         }
     }
 }
@@ -84,6 +90,7 @@ impl FuseSettings {
             reference: middle_frame(frames),
             crop: self.crop,
             memory: (self.memory_mb as usize) << 20,
+            spill: self.spill_removal,
             ..FuseParams::default()
         };
         p.graphcut.lambda = self.lambda;
@@ -129,11 +136,12 @@ mod tests {
             "--memory",
             "100",
             "--no-local-registration",
+            "--no-spill-removal",
         ])
         .unwrap();
         let text =
             "method = \"pyramid\"\nlambda = 2.5\nquality = 80\ncrop = true\nmemory_mb = 100\n\
-                    local_registration = false";
+                    local_registration = false\nspill_removal = false";
         assert_eq!(both, file(text));
         for (flag, key, bad) in [
             ("--lambda", "lambda", "10.5"),
@@ -170,5 +178,11 @@ mod tests {
             ..FuseSettings::default()
         };
         assert!(off.params(6).align.is_some_and(|a| !a.local));
+        assert!(FuseSettings::default().params(6).spill);
+        let kept = FuseSettings {
+            spill_removal: false,
+            ..FuseSettings::default()
+        };
+        assert!(!kept.params(6).spill);
     }
 }

@@ -187,6 +187,9 @@ pub fn run(
         tracing::warn!("{}; raise [fuse] memory_mb", fused.memory);
     }
     tracing::info!("focus order: {}", fused.order);
+    if let Some(s) = &fused.spill {
+        tracing::info!("spill: {s}");
+    }
     if progress.cancelled() {
         return Err(FuseError::Cancelled.into());
     }

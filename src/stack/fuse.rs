@@ -5,9 +5,10 @@ use super::compose::{compose, Select};
 use super::graphcut::label_stack;
 use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
-use super::order::{focus_order, OrderEvidence};
+use super::order::{focus_order, Order, OrderEvidence};
 use super::params::{FuseParams, Method};
 use super::register::{register_with, Placement, RegisterError, Registration};
+use super::spill::{unmix, Unmixed};
 use super::transform::Warp;
 use super::{Progress, Stage};
 use std::borrow::Cow;
@@ -68,6 +69,8 @@ pub struct Fused<T> {
     pub alignment: Option<Alignment>,
     /// The rectangle of the reference frame the output shows, when cropped.
     pub crop: Option<Rect>,
+    /// What taking the nearer objects' spill out of farther frames did (`None`: not asked).
+    pub spill: Option<Unmixed>,
     /// Wall time of each stage, in order.
     pub timings: Vec<(Stage, Duration)>,
     /// How the memory budget was spent.
@@ -155,9 +158,10 @@ pub fn fuse<T: Sample>(
             &full
         }
     };
+    let mut spill = None;
     let (mut image, mut labels, order) = match params.method {
         Method::GraphCut => {
-            let labels = label_stack(
+            let mut labels = label_stack(
                 &frames,
                 coverage,
                 reference as u8,
@@ -168,6 +172,11 @@ pub fn fuse<T: Sample>(
             let order = focus_order(&frames, &labels, coverage);
             lap(Stage::Labels, &mut timings);
             go_on(progress)?;
+            // Counted in the compose: it prepares the frames for it.
+            let nearest_first = order.order.assumed() == Order::NearestFirst;
+            spill = params
+                .spill
+                .then(|| unmix(&mut frames, &mut labels, nearest_first));
             let (image, _) = compose(
                 &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),
@@ -202,6 +211,7 @@ pub fn fuse<T: Sample>(
         order,
         alignment,
         crop,
+        spill,
         timings,
         memory: plan,
     })

@@ -15,6 +15,7 @@ pub mod order;
 pub mod params;
 pub mod pyramid;
 pub mod register;
+pub mod spill;
 pub mod srgb;
 pub mod transform;
 

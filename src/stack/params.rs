@@ -27,6 +27,9 @@ pub struct FuseParams {
     pub crop: bool,
     /// Bytes the fuse should stay within (see `memory::plan`).
     pub memory: usize,
+    /// Take nearer objects' defocus spill out of farther frames before composing (graph cut
+    /// only; see `spill`).
+    pub spill: bool,
 }
 
 impl Default for FuseParams {
@@ -38,6 +41,7 @@ impl Default for FuseParams {
             reference: 0,
             crop: false,
             memory: DEFAULT_BUDGET,
+            spill: true,
         }
     }
 }

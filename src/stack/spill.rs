@@ -1,0 +1,876 @@
+//! Takes the defocused spill of nearer objects out of the frames focused farther, before they are
+//! composed: the halo.
+//!
+//! Where the label map has a depth step, the frame focused on the far side shows the near object
+//! defocused, spread over the background around it: `F = G∗(α·C) + (1 − G∗α)·B`, with `α` the
+//! near object's mask, `C` its colour (both seen sharp in its own frame), `G` the Gaussian of
+//! its defocus in the far frame and `B` the background the output wants. No frame holds `B`
+//! clean there (the near-focused frame shows it blurred), so choosing frames cannot remove the
+//! halo; un-mixing can: `B = (F − G∗(α·C)) / (1 − G∗α)`.
+//!
+//! Everything the model needs is estimated from the stack itself:
+//! - `α` and `C` from the label map and the labelled frame (a region labelled `k` is where
+//!   frame `k` is sharp);
+//! - `G`'s σ for each pair of labels from how well frame `k`, blurred, explains frame `l` over
+//!   the interior of `k`'s region (the blur fit);
+//! - the light the defocus mixed in: a camera's lens mixes in linear light while its frames are
+//!   stored sRGB-encoded, but a renderer may have mixed display values; the blur fit is run in
+//!   both and the one that explains the stack better is used, since un-mixing in the wrong one
+//!   leaves dark or bright rims.
+//!
+//! Only pairs at least two planes apart count: neighbouring planes blur each other too little to
+//! fit, and a slanted surface spans them without any step. Where the near object covers more
+//! than [`HIDDEN`] of the background the division amplifies noise, so the un-mixing fades out
+//! there, and the few pixels next to a nearer region keep the frame as it is (the near object's
+//! own edge is composed from its own frame). The fit and the spill are computed at a reduced
+//! resolution (the spill is a blur, smooth by nature) and sampled bilinearly at full size.
+
+use super::blur::{downsample_area, gaussian_blur};
+use super::image::{Image, Plane, Sample};
+use super::srgb;
+use rayon::prelude::*;
+
+/// Pixels of the reduced working resolution, at most: enough to fit blurs of 1 px and more.
+const WORK_PIXELS: usize = 150_000;
+/// Blur σ (full-resolution pixels) the fit tries, to ½ px.
+const SIGMA_MIN: f32 = 1.0;
+const SIGMA_MAX: f32 = 16.0;
+/// Reduced pixels a near region's interior needs for its blur to be fitted.
+const MIN_INTERIOR: usize = 200;
+/// The background is taken as too deeply hidden where the near object's spill covers more than
+/// this share of it: the un-mixing fades out over [`FADE`] below it.
+const HIDDEN: f32 = 0.7;
+const FADE: f32 = 0.2;
+/// Spill coverage below this changes nothing.
+const TRACE: f32 = 0.01;
+/// Full-resolution pixels next to a nearer region that keep the frame as it is.
+const GUARD: usize = 2;
+/// How far from a step the labels may have misplaced it, in full-resolution pixels.
+const RING: usize = 8;
+/// σ of the local mean colours [`refine`] compares, full-resolution pixels.
+const MEAN_SIGMA: f32 = 6.0;
+
+/// The values the lens's defocus mixed: linear light (a camera) or display values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Light {
+    Linear,
+    Display,
+}
+
+impl Light {
+    /// A stored (sRGB-encoded) value in this light.
+    fn mixed(self, v: f32) -> f32 {
+        match self {
+            Light::Linear => srgb::decode(v),
+            Light::Display => v,
+        }
+    }
+
+    /// A value in this light, stored.
+    fn stored(self, v: f32) -> f32 {
+        match self {
+            Light::Linear => srgb::encode(v),
+            Light::Display => v.clamp(0.0, 1.0),
+        }
+    }
+}
+
+/// A near label's defocus in a farther frame, as fitted.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pair {
+    pub near: u8,
+    pub far: u8,
+    /// σ of the Gaussian, in full-resolution pixels.
+    pub sigma: f32,
+}
+
+/// What the un-mixing did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Unmixed {
+    /// `None` when no pair could be fitted (no depth steps, or regions too small).
+    pub light: Option<Light>,
+    pub pairs: Vec<Pair>,
+    /// Per frame, the pixels changed.
+    pub changed: Vec<usize>,
+    /// Pixels whose label moved to a near object's frame (see [`refine`]).
+    pub relabelled: usize,
+    /// Pixels in a frame.
+    pub frame_pixels: usize,
+}
+
+/// One line for the logs.
+impl std::fmt::Display for Unmixed {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        let Some(light) = self.light else {
+            return write!(f, "no depth step to take a halo out of");
+        };
+        let (lo, hi) = self.pairs.iter().fold((f32::MAX, 0f32), |(lo, hi), p| {
+            (lo.min(p.sigma), hi.max(p.sigma))
+        });
+        let changed: usize = self.changed.iter().sum();
+        let all = (self.frame_pixels * self.changed.len()).max(1);
+        write!(
+            f,
+            "{} near/far pairs, defocus σ {lo:.1}–{hi:.1} px, mixed in {} light; {:.1} % of the \
+             frames' pixels un-mixed, {} pixels moved to the near object's frame",
+            self.pairs.len(),
+            match light {
+                Light::Linear => "linear",
+                Light::Display => "display",
+            },
+            100.0 * changed as f64 / all as f64,
+            self.relabelled
+        )
+    }
+}
+
+/// Un-mixes every frame in place, given the label map and that lower frame indices are nearer
+/// (`nearest_first`) or farther. Where the near side of a step is mislabelled (a farther frame
+/// taken where the near object is, which shows the background through the object's edge), the
+/// labels are moved to the near object's frame.
+pub fn unmix<T: Sample>(
+    frames: &mut [Image<T>],
+    labels: &mut [u8],
+    nearest_first: bool,
+) -> Unmixed {
+    let n = frames.len();
+    let mut out = Unmixed {
+        light: None,
+        pairs: Vec::new(),
+        changed: vec![0; n],
+        relabelled: 0,
+        frame_pixels: frames.first().map_or(0, |f| f.pixels()),
+    };
+    if n < 3 || frames[0].pixels() == 0 {
+        return out;
+    }
+    let (w, h) = (frames[0].width, frames[0].height);
+    debug_assert_eq!(labels.len(), w * h);
+    // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
+    let frame_of = |d: usize| if nearest_first { d } else { n - 1 - d };
+    let factor = (1..)
+        .find(|&f| w.div_ceil(f) * h.div_ceil(f) <= WORK_PIXELS)
+        .expect("a factor as large as the image fits");
+    let reduced: Vec<Vec<Plane>> = (0..n)
+        .into_par_iter()
+        .map(|d| downsample_area(&frames[frame_of(d)], factor).to_planes())
+        .collect();
+    let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
+    let masks = region_masks(&depth, w, h, n, factor);
+    let refined = refine(frames, &frame_of, &mut depth, &reduced, &masks, factor);
+    out.relabelled = refined.relabelled;
+    for (l, &d) in labels.iter_mut().zip(&depth) {
+        *l = frame_of(d as usize) as u8;
+    }
+    let masks = region_masks(&refined.objects, w, h, n, factor);
+    let linear: Vec<Vec<Plane>> = reduced
+        .par_iter()
+        .map(|planes| {
+            let decode = |p: &Plane| Plane {
+                data: p.data.iter().map(|&v| srgb::decode(v)).collect(),
+                ..*p
+            };
+            planes.iter().map(decode).collect()
+        })
+        .collect();
+    let lights = [(Light::Linear, &linear[..]), (Light::Display, &reduced[..])];
+    let (light, pairs) = fit(lights, &masks, factor);
+    let Some(light) = light else {
+        return out;
+    };
+    let mixed = match light {
+        Light::Linear => &linear,
+        Light::Display => &reduced,
+    };
+    out.light = Some(light);
+    let nearest = window_min(&refined.objects, w, h, GUARD);
+    for l in 0..n {
+        let mine: Vec<&Pair> = pairs.iter().filter(|p| p.far as usize == l).collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let spill = Spill::of(mixed, &masks, &mine, factor);
+        let is_guarded = |p: usize| nearest[p] as usize + 2 <= l;
+        out.changed[frame_of(l)] = spill.apply(&mut frames[frame_of(l)], &is_guarded, light);
+    }
+    out.pairs = pairs
+        .into_iter()
+        .map(|p| Pair {
+            near: frame_of(p.near as usize) as u8,
+            far: frame_of(p.far as usize) as u8,
+            sigma: p.sigma,
+        })
+        .collect();
+    out
+}
+
+/// Per depth rank, the share of each reduced pixel it covers in `depth`: one pass counting
+/// every rank at once.
+fn region_masks(depth: &[u8], w: usize, h: usize, n: usize, factor: usize) -> Vec<Plane> {
+    let (rw, rh) = (w.div_ceil(factor), h.div_ceil(factor));
+    let rows: Vec<Vec<f32>> = (0..rh)
+        .into_par_iter()
+        .map(|ry| {
+            let mut count = vec![0.0f32; n * rw];
+            let ys = ry * factor..((ry + 1) * factor).min(h);
+            for y in ys.clone() {
+                for (x, &d) in depth[y * w..][..w].iter().enumerate() {
+                    count[d as usize * rw + x / factor] += 1.0;
+                }
+            }
+            for (i, c) in count.iter_mut().enumerate() {
+                let rx = i % rw;
+                let bw = ((rx + 1) * factor).min(w) - rx * factor;
+                *c /= (bw * ys.len()) as f32;
+            }
+            count
+        })
+        .collect();
+    (0..n)
+        .map(|d| {
+            let data = rows
+                .iter()
+                .flat_map(|r| r[d * rw..(d + 1) * rw].iter().copied())
+                .collect();
+            Plane::from_vec(rw, rh, 1, data)
+        })
+        .collect()
+}
+
+/// The smallest value of `map` within `r` pixels (a square window): van Herk's running minimum
+/// along rows, then along the columns of the transposed map, a few operations a pixel whatever
+/// `r`.
+fn window_min(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
+    let rows = min_along_rows(map, w, r);
+    let cols = min_along_rows(&transpose(&rows, w, h), h, r);
+    transpose(&cols, h, w)
+}
+
+fn min_along_rows(map: &[u8], w: usize, r: usize) -> Vec<u8> {
+    let k = 2 * r + 1;
+    let len = w + 2 * r;
+    map.par_chunks(w)
+        .flat_map_iter(|row| {
+            let at = |i: usize| match i.checked_sub(r) {
+                Some(j) if j < w => row[j],
+                _ => u8::MAX,
+            };
+            // Minimum from the start of each block of k to i, and from i to the block's end.
+            let (mut ahead, mut behind) = (vec![0u8; len], vec![0u8; len]);
+            for i in 0..len {
+                ahead[i] = if i % k == 0 {
+                    at(i)
+                } else {
+                    ahead[i - 1].min(at(i))
+                };
+            }
+            for i in (0..len).rev() {
+                behind[i] = if i + 1 == len || (i + 1) % k == 0 {
+                    at(i)
+                } else {
+                    behind[i + 1].min(at(i))
+                };
+            }
+            (0..w).map(move |x| behind[x].min(ahead[x + 2 * r]))
+        })
+        .collect()
+}
+
+fn transpose(map: &[u8], w: usize, h: usize) -> Vec<u8> {
+    let mut out = vec![0u8; w * h];
+    out.par_chunks_mut(h).enumerate().for_each(|(x, col)| {
+        for (y, v) in col.iter_mut().enumerate() {
+            *v = map[y * w + x];
+        }
+    });
+    out
+}
+
+/// The near objects' true extent next to each depth step.
+struct Refined {
+    /// Per pixel, the depth rank of the object seen there.
+    objects: Vec<u8>,
+    /// Pixels whose label moved to the near object's frame.
+    relabelled: usize,
+}
+
+/// Within [`RING`] pixels of a step from depth `k` to `k + 2` or farther, decides each pixel
+/// by the near frame's own colours: nearer the near object's local mean colour (over where it
+/// is labelled, away from the ring) than the background's (over where depth `k + 2` or farther
+/// is labelled), it is the near object. Labels are taken as they are elsewhere. In the near
+/// frame the object is sharp and the background behind it blurred, so the two colours separate
+/// where the label map, which follows contrast, does not.
+fn refine<T: Sample>(
+    frames: &[Image<T>],
+    frame_of: &(dyn Fn(usize) -> usize + Sync),
+    depth: &mut [u8],
+    reduced: &[Vec<Plane>],
+    masks: &[Plane],
+    factor: usize,
+) -> Refined {
+    let (w, h, ch) = (frames[0].width, frames[0].height, frames[0].channels);
+    let n = reduced.len();
+    let nearest = window_min(depth, w, h, RING);
+    let inverted: Vec<u8> = depth.iter().map(|&d| u8::MAX - d).collect();
+    let farthest: Vec<u8> = window_min(&inverted, w, h, RING)
+        .into_iter()
+        .map(|v| u8::MAX - v)
+        .collect();
+    let full = |m: &Plane| -> Plane {
+        let data = m
+            .data
+            .iter()
+            .map(|&v| f32::from(u8::from(v > 0.999)))
+            .collect();
+        Plane::from_vec(m.width, m.height, 1, data)
+    };
+    let s = MEAN_SIGMA / factor as f32;
+    // Per depth k: the local mean colour of its object and of what lies behind it, in frame k.
+    let means: Vec<Option<[Vec<Plane>; 2]>> = (0..n)
+        .into_par_iter()
+        .map(|k| {
+            if k + 2 >= n {
+                return None;
+            }
+            let inside = full(&masks[k]);
+            let mut behind = Plane::new(inside.width, inside.height, 1);
+            for m in &masks[k + 2..] {
+                add(&mut behind, m);
+            }
+            let behind = full(&behind);
+            Some([inside, behind].map(|wgt| {
+                let norm = gaussian_blur(&wgt, s);
+                reduced[k]
+                    .iter()
+                    .map(|c| {
+                        let data = c.data.iter().zip(&wgt.data).map(|(v, m)| v * m).collect();
+                        let mut mean =
+                            gaussian_blur(&Plane::from_vec(wgt.width, wgt.height, 1, data), s);
+                        for (v, &z) in mean.data.iter_mut().zip(&norm.data) {
+                            *v = if z > 1e-3 { *v / z } else { f32::NAN };
+                        }
+                        mean
+                    })
+                    .collect()
+            }))
+        })
+        .collect();
+    let scale = 1.0 / factor as f32;
+    let mut objects = depth.to_vec();
+    let relabelled = depth
+        .par_chunks_mut(w)
+        .zip(objects.par_chunks_mut(w))
+        .enumerate()
+        .map(|(y, (drow, orow))| {
+            let ry = (y as f32 + 0.5) * scale - 0.5;
+            let mut moved = 0;
+            for x in 0..w {
+                let i = y * w + x;
+                let k = nearest[i] as usize;
+                if farthest[i] as usize >= k + 2 {
+                    let Some([inside, behind]) = &means[k] else {
+                        continue;
+                    };
+                    let rx = (x as f32 + 0.5) * scale - 0.5;
+                    let px = &frames[frame_of(k)].data[i * ch..][..ch];
+                    let (mut din, mut dout) = (0.0, 0.0);
+                    for (c, v) in px.iter().enumerate() {
+                        let v = v.to_f32() / T::MAX;
+                        din += (v - inside[c].sample_bilinear(rx, ry)).powi(2);
+                        dout += (v - behind[c].sample_bilinear(rx, ry)).powi(2);
+                    }
+                    if !(din.is_finite() && dout.is_finite()) {
+                        continue;
+                    }
+                    if din < dout {
+                        orow[x] = k as u8;
+                        if drow[x] as usize >= k + 2 {
+                            drow[x] = k as u8;
+                            moved += 1;
+                        }
+                    } else if drow[x] as usize == k {
+                        orow[x] = farthest[i];
+                    }
+                }
+            }
+            moved
+        })
+        .sum();
+    Refined {
+        objects,
+        relabelled,
+    }
+}
+
+/// Distance (city block, reduced pixels) from each pixel inside a mask to the nearest pixel
+/// outside it; 0 outside.
+fn inside_distance(mask: &Plane) -> Vec<u32> {
+    let (w, h) = (mask.width, mask.height);
+    let big = (w + h) as u32;
+    let mut d: Vec<u32> = mask
+        .data
+        .iter()
+        .map(|&a| if a >= 0.5 { big } else { 0 })
+        .collect();
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if d[i] == 0 {
+                continue;
+            }
+            let up = if y > 0 { d[i - w] + 1 } else { big };
+            let left = if x > 0 { d[i - 1] + 1 } else { big };
+            d[i] = d[i].min(up).min(left);
+        }
+    }
+    for y in (0..h).rev() {
+        for x in (0..w).rev() {
+            let i = y * w + x;
+            if d[i] == 0 {
+                continue;
+            }
+            let down = if y + 1 < h { d[i + w] + 1 } else { big };
+            let right = if x + 1 < w { d[i + 1] + 1 } else { big };
+            d[i] = d[i].min(down).min(right);
+        }
+    }
+    d
+}
+
+fn luma(planes: &[Plane]) -> Plane {
+    let px = planes[0].pixels();
+    let data = (0..px)
+        .map(|i| match planes.len() {
+            1 => planes[0].data[i],
+            _ => 0.299 * planes[0].data[i] + 0.587 * planes[1].data[i] + 0.114 * planes[2].data[i],
+        })
+        .collect();
+    Plane::from_vec(planes[0].width, planes[0].height, 1, data)
+}
+
+/// The blur fit: for every pair of a near label `k` and a farther frame `l`, the σ at which
+/// frame `k` blurred best explains frame `l` over the interior of `k`'s region (deeper inside
+/// than 3σ, so the background around the region does not enter), in both lights. Returns the
+/// light whose fits leave the smaller residual (geometric mean of the residuals relative to
+/// frame `l`'s variance there) and its pairs; `None` when nothing could be fitted. `lights` are
+/// the reduced frames in each light.
+fn fit(
+    lights: [(Light, &[Vec<Plane>]); 2],
+    masks: &[Plane],
+    factor: usize,
+) -> (Option<Light>, Vec<Pair>) {
+    let n = masks.len();
+    let interiors: Vec<Vec<u32>> = masks.par_iter().map(inside_distance).collect();
+    let mut best: Option<(f64, Light, Vec<Pair>)> = None;
+    for (light, frames) in lights {
+        let lumas: Vec<Plane> = frames.par_iter().map(|p| luma(p)).collect();
+        let fits: Vec<(Pair, f64)> = (0..n)
+            .into_par_iter()
+            .flat_map_iter(|k| {
+                let far: Vec<usize> = (k + 2..n).collect();
+                fit_near(k, &far, &lumas, &interiors[k], factor)
+            })
+            .collect();
+        if fits.is_empty() {
+            continue;
+        }
+        let score = fits.iter().map(|(_, r)| r.max(1e-12).ln()).sum::<f64>() / fits.len() as f64;
+        if best.as_ref().is_none_or(|(s, _, _)| score < *s) {
+            best = Some((score, light, fits.into_iter().map(|(p, _)| p).collect()));
+        }
+    }
+    match best {
+        Some((_, light, pairs)) => (Some(light), pairs),
+        None => (None, Vec::new()),
+    }
+}
+
+/// Fits near depth `k`'s blur in each of the frames `far`, on a crop around its region's
+/// interior: σ in 1 px steps, then ½ px either side of each pair's best. A pair whose best σ is
+/// the largest tried (the fit ran off the grid) or whose region is too small is left out.
+fn fit_near(
+    k: usize,
+    far: &[usize],
+    lumas: &[Plane],
+    inside: &[u32],
+    factor: usize,
+) -> Vec<(Pair, f64)> {
+    let (rw, rh) = (lumas[k].width, lumas[k].height);
+    let f = factor as f32;
+    let margin = |sigma: f32| (3.0 * sigma / f).ceil() as u32;
+    let first = margin(SIGMA_MIN);
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for (i, _) in inside.iter().enumerate().filter(|(_, &d)| d > first) {
+        let (x, y) = (i % rw, i / rw);
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+    }
+    if x0 == usize::MAX || far.is_empty() {
+        return Vec::new();
+    }
+    // Room for the widest kernel, so the crop's edges do not change the interior's blur.
+    let pad = (3.0 * SIGMA_MAX / f).ceil() as usize + 1;
+    let (x0, y0) = (x0.saturating_sub(pad), y0.saturating_sub(pad));
+    let (x1, y1) = ((x1 + pad).min(rw - 1), (y1 + pad).min(rh - 1));
+    let (cw, ch) = (x1 - x0 + 1, y1 - y0 + 1);
+    let crop = |p: &[f32]| -> Vec<f32> {
+        (y0..=y1)
+            .flat_map(|y| p[y * rw + x0..=y * rw + x1].iter().copied())
+            .collect()
+    };
+    let near = Plane::from_vec(cw, ch, 1, crop(&lumas[k].data));
+    let fars: Vec<Vec<f32>> = far.iter().map(|&l| crop(&lumas[l].data)).collect();
+    let depth_in: Vec<u32> = (y0..=y1)
+        .flat_map(|y| inside[y * rw + x0..=y * rw + x1].iter().copied())
+        .collect();
+    // Each far frame's residual at `sigma`, relative to its variance over the interior.
+    let residuals = |sigma: f32| -> Option<Vec<f64>> {
+        let m = margin(sigma);
+        let idx: Vec<usize> = (0..depth_in.len()).filter(|&i| depth_in[i] > m).collect();
+        if idx.len() < MIN_INTERIOR {
+            return None;
+        }
+        let blurred = gaussian_blur(&near, sigma / f);
+        let count = idx.len() as f64;
+        Some(
+            fars.iter()
+                .map(|v| {
+                    let mean = idx.iter().map(|&i| v[i] as f64).sum::<f64>() / count;
+                    let (mut var, mut err) = (0.0, 0.0);
+                    for &i in &idx {
+                        var += (v[i] as f64 - mean).powi(2);
+                        err += (blurred.data[i] as f64 - v[i] as f64).powi(2);
+                    }
+                    err / var.max(1e-9 * count)
+                })
+                .collect(),
+        )
+    };
+    // Coarse steps until every pair's residual has risen twice past its least.
+    let mut coarse: Vec<(f32, Vec<f64>)> = Vec::new();
+    let mut least: Vec<(usize, f64)> = vec![(0, f64::MAX); far.len()];
+    for (i, s) in (0..)
+        .map(|i| SIGMA_MIN + i as f32)
+        .take_while(|&s| s <= SIGMA_MAX)
+        .enumerate()
+    {
+        let Some(r) = residuals(s) else { break };
+        for (l, &v) in least.iter_mut().zip(&r) {
+            if v < l.1 {
+                *l = (i, v);
+            }
+        }
+        coarse.push((s, r));
+        if least.iter().all(|&(at, _)| i >= at + 2) {
+            break;
+        }
+    }
+    let Some(largest) = coarse.last().map(|(s, _)| *s) else {
+        return Vec::new();
+    };
+    let mut best: Vec<(f32, f64)> = (0..far.len())
+        .map(|j| {
+            coarse
+                .iter()
+                .map(|(s, r)| (*s, r[j]))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .expect("at least one σ")
+        })
+        .collect();
+    let ran_off: Vec<bool> = best.iter().map(|&(s, _)| s >= largest).collect();
+    let mut finer: Vec<f32> = best
+        .iter()
+        .flat_map(|&(s, _)| [s - 0.5, s + 0.5])
+        .filter(|&s| s >= SIGMA_MIN && s < largest)
+        .collect();
+    finer.sort_by(f32::total_cmp);
+    finer.dedup();
+    for s in finer {
+        let Some(r) = residuals(s) else { continue };
+        for (j, b) in best.iter_mut().enumerate() {
+            if (s - b.0).abs() <= 0.5 && r[j] < b.1 {
+                *b = (s, r[j]);
+            }
+        }
+    }
+    far.iter()
+        .zip(best)
+        .zip(ran_off)
+        .filter(|(_, off)| !off)
+        .map(|((&l, (sigma, rel)), _)| {
+            let pair = Pair {
+                near: k as u8,
+                far: l as u8,
+                sigma,
+            };
+            (pair, rel)
+        })
+        .collect()
+}
+
+/// One far frame's spill at the reduced resolution: the near objects' blurred colour `G∗(α·C)`
+/// per channel and their blurred coverage `G∗α`, in the mixing light.
+struct Spill {
+    colour: Vec<Plane>,
+    cover: Plane,
+    factor: usize,
+}
+
+impl Spill {
+    /// `mixed`: the reduced frames in the light the defocus mixed in.
+    fn of(mixed: &[Vec<Plane>], masks: &[Plane], pairs: &[&Pair], factor: usize) -> Spill {
+        let (rw, rh) = (masks[0].width, masks[0].height);
+        let channels = mixed[0].len();
+        let mut colour = vec![Plane::new(rw, rh, 1); channels];
+        let mut cover = Plane::new(rw, rh, 1);
+        for p in pairs {
+            let (k, s) = (p.near as usize, p.sigma / factor as f32);
+            let a = &masks[k];
+            add(&mut cover, &gaussian_blur(a, s));
+            let blurred: Vec<Plane> = mixed[k]
+                .par_iter()
+                .map(|c| {
+                    let data = c.data.iter().zip(&a.data).map(|(&v, &m)| v * m).collect();
+                    gaussian_blur(&Plane::from_vec(rw, rh, 1, data), s)
+                })
+                .collect();
+            for (acc, b) in colour.iter_mut().zip(&blurred) {
+                add(acc, b);
+            }
+        }
+        Spill {
+            colour,
+            cover,
+            factor,
+        }
+    }
+
+    /// Un-mixes `frame` where the spill covers some of it and `guarded` does not keep it;
+    /// returns the pixels changed.
+    fn apply<T: Sample>(
+        &self,
+        frame: &mut Image<T>,
+        guarded: &(dyn Fn(usize) -> bool + Sync),
+        light: Light,
+    ) -> usize {
+        let (w, ch) = (frame.width, frame.channels);
+        let (rw, rh) = (self.cover.width, self.cover.height);
+        let scale = 1.0 / self.factor as f32;
+        // Reduced pixels whose 2×2 block (what a bilinear sample there reads) holds any spill:
+        // most of a frame holds none and is passed over without sampling.
+        let spilt =
+            |x: usize, y: usize| self.cover.data[y.min(rh - 1) * rw + x.min(rw - 1)] >= TRACE;
+        let active: Vec<bool> = (0..rw * rh)
+            .map(|i| {
+                let (x, y) = (i % rw, i / rw);
+                spilt(x, y) || spilt(x + 1, y) || spilt(x, y + 1) || spilt(x + 1, y + 1)
+            })
+            .collect();
+        let cell = |v: f32, n: usize| (v.floor().max(0.0) as usize).min(n - 1);
+        frame
+            .data
+            .par_chunks_mut(w * ch)
+            .enumerate()
+            .map(|(y, row)| {
+                let ry = (y as f32 + 0.5) * scale - 0.5;
+                let active = &active[cell(ry, rh) * rw..][..rw];
+                let mut changed = 0;
+                for (x, px) in row.chunks_exact_mut(ch).enumerate() {
+                    let rx = (x as f32 + 0.5) * scale - 0.5;
+                    if !active[cell(rx, rw)] {
+                        continue;
+                    }
+                    let a = self.cover.sample_bilinear(rx, ry);
+                    if a < TRACE || guarded(y * w + x) {
+                        continue;
+                    }
+                    let keep = ((HIDDEN - a) / FADE).clamp(0.0, 1.0);
+                    if keep == 0.0 {
+                        continue;
+                    }
+                    for (c, v) in px.iter_mut().enumerate() {
+                        let f = light.mixed(v.to_f32() / T::MAX);
+                        let s = self.colour[c].sample_bilinear(rx, ry);
+                        let b = ((f - s) / (1.0 - a)).clamp(0.0, 1.0);
+                        let mixed = keep * b + (1.0 - keep) * f;
+                        *v = T::from_f32(light.stored(mixed) * T::MAX);
+                    }
+                    changed += 1;
+                }
+                changed
+            })
+            .sum()
+    }
+}
+
+fn add(acc: &mut Plane, b: &Plane) {
+    acc.data.iter_mut().zip(&b.data).for_each(|(a, v)| *a += v);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SIZE: usize = 160;
+    const CENTRE: f32 = 80.0;
+    const RADIUS: f32 = 40.0;
+
+    /// A textured disc (the near object) over a textured background, seen by three frames:
+    /// focused on the disc (the background blurred by 3 px), between (disc 2, background
+    /// 1.5), and on the background (the disc blurred by 4 px over it), mixed in `light` and
+    /// stored in sRGB-encoded 8 bits. Returns the frames and the sharp background.
+    fn scene(light: Light) -> (Vec<Image<u8>>, Vec<Plane>) {
+        let plane = |f: &dyn Fn(f32, f32) -> f32| {
+            Plane::from_fn(SIZE, SIZE, 1, |x, y, _| f(x as f32, y as f32))
+        };
+        let alpha = plane(&|x, y| {
+            let r = ((x - CENTRE).powi(2) + (y - CENTRE).powi(2)).sqrt();
+            (RADIUS + 0.5 - r).clamp(0.0, 1.0)
+        });
+        let stripes = |x: f32, y: f32, p: f32| 0.5 + 0.35 * ((x + 0.5 * y) * p).sin();
+        let near: Vec<Plane> = [0.9, 0.3, 0.2]
+            .iter()
+            .map(|&c| plane(&|x, y| light.mixed(c * stripes(x, y, 0.7))))
+            .collect();
+        let far: Vec<Plane> = [0.3, 0.5, 0.8]
+            .iter()
+            .map(|&c| plane(&|x, y| light.mixed(c * stripes(y, -x, 0.45))))
+            .collect();
+        let frame = |near_sigma: f32, far_sigma: f32| {
+            let a = gaussian_blur(&alpha, near_sigma);
+            let planes: Vec<Plane> = near
+                .iter()
+                .zip(&far)
+                .map(|(c, b)| {
+                    let ac = Plane {
+                        data: c.data.iter().zip(&alpha.data).map(|(v, m)| v * m).collect(),
+                        ..*c
+                    };
+                    let (ac, b) = (gaussian_blur(&ac, near_sigma), gaussian_blur(b, far_sigma));
+                    let data = (0..SIZE * SIZE)
+                        .map(|i| light.stored(ac.data[i] + (1.0 - a.data[i]) * b.data[i]))
+                        .collect();
+                    Plane::from_vec(SIZE, SIZE, 1, data)
+                })
+                .collect();
+            Image::<u8>::from_planes(&planes)
+        };
+        let frames = vec![frame(0.0, 3.0), frame(2.0, 1.5), frame(4.0, 0.0)];
+        let background = far
+            .iter()
+            .map(|b| Plane {
+                data: b.data.iter().map(|&v| light.stored(v)).collect(),
+                ..*b
+            })
+            .collect();
+        (frames, background)
+    }
+
+    fn distance(i: usize) -> f32 {
+        let (x, y) = ((i % SIZE) as f32, (i / SIZE) as f32);
+        ((x - CENTRE).powi(2) + (y - CENTRE).powi(2)).sqrt() - RADIUS
+    }
+
+    /// The disc labelled 0 and the rest 2, as a label map that follows contrast gets them
+    /// roughly: 3 px too wide on the left, 3 px too narrow on the right.
+    fn labels() -> Vec<u8> {
+        (0..SIZE * SIZE)
+            .map(|i| {
+                let shift = if i % SIZE < SIZE / 2 { 3.0 } else { -3.0 };
+                if distance(i) < shift {
+                    0
+                } else {
+                    2
+                }
+            })
+            .collect()
+    }
+
+    /// RMS error of `frame` against `truth` over pixels 2–12 px outside the disc: the halo.
+    fn halo(frame: &Image<u8>, truth: &[Plane]) -> f32 {
+        let ring: Vec<usize> = (0..SIZE * SIZE)
+            .filter(|&i| (2.0..12.0).contains(&distance(i)))
+            .collect();
+        let sum: f32 = ring
+            .iter()
+            .flat_map(|&i| (0..3).map(move |c| (i, c)))
+            .map(|(i, c)| (frame.data[i * 3 + c] as f32 / 255.0 - truth[c].data[i]).powi(2))
+            .sum();
+        (sum / (ring.len() * 3) as f32).sqrt()
+    }
+
+    #[test]
+    fn the_halo_is_taken_out_in_the_light_the_defocus_mixed_in() {
+        for light in [Light::Linear, Light::Display] {
+            let (mut frames, background) = scene(light);
+            let before = frames.clone();
+            let mut l = labels();
+            let out = unmix(&mut frames, &mut l, true);
+            assert_eq!(out.light, Some(light));
+            let pair = out.pairs.iter().find(|p| (p.near, p.far) == (0, 2));
+            let sigma = pair.expect("the disc's blur in frame 2 is fitted").sigma;
+            assert!((sigma - 4.0).abs() <= 0.5, "{light:?}: σ {sigma}");
+            let (was, now) = (halo(&before[2], &background), halo(&frames[2], &background));
+            assert!(now < 0.6 * was, "{light:?}: halo RMS {was} -> {now}");
+            // Far from the disc, and in the frames nothing spills into, nothing changes.
+            let far_away = (0..SIZE * SIZE).filter(|&i| distance(i) > 30.0);
+            assert!(far_away
+                .into_iter()
+                .all(|i| frames[2].data[i * 3] == before[2].data[i * 3]));
+            assert_eq!((&frames[0], &frames[1]), (&before[0], &before[1]));
+            // The right side's 3 px the labels missed go back to the disc's frame.
+            let missed = (0..SIZE * SIZE)
+                .filter(|&i| i % SIZE > SIZE / 2 + 8 && (-2.5..-0.5).contains(&distance(i)));
+            let (moved, all) = missed.fold((0, 0), |(m, a), i| (m + usize::from(l[i] == 0), a + 1));
+            assert!(moved * 10 >= all * 9, "{light:?}: {moved} of {all} moved");
+        }
+    }
+
+    #[test]
+    fn a_stack_given_farthest_first_is_un_mixed_the_same() {
+        let (frames, _) = scene(Light::Linear);
+        let (mut forward, mut fl) = (frames.clone(), labels());
+        unmix(&mut forward, &mut fl, true);
+        let mut reversed: Vec<Image<u8>> = frames.into_iter().rev().collect();
+        let mut rl: Vec<u8> = labels().iter().map(|&l| 2 - l).collect();
+        let out = unmix(&mut reversed, &mut rl, false);
+        assert_eq!(reversed[0], forward[2]);
+        assert!(rl.iter().zip(&fl).all(|(&r, &f)| r == 2 - f));
+        assert!(out.pairs.iter().all(|p| (p.near, p.far) == (2, 0)));
+    }
+
+    #[test]
+    fn without_a_step_two_planes_deep_nothing_changes() {
+        let (frames, _) = scene(Light::Linear);
+        // Two frames, and three whose labels are all one plane.
+        for (mut f, mut l) in [
+            (
+                frames[1..].to_vec(),
+                labels().iter().map(|&l| l / 2).collect::<Vec<u8>>(),
+            ),
+            (frames.clone(), vec![1; SIZE * SIZE]),
+        ] {
+            let (before, labels_before) = (f.clone(), l.clone());
+            let out = unmix(&mut f, &mut l, true);
+            assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
+            assert_eq!((f, l), (before, labels_before));
+        }
+    }
+
+    #[test]
+    fn the_window_minimum_is_the_minimum_over_the_window() {
+        let (w, h, r) = (23, 17, 3);
+        let map: Vec<u8> = (0..w * h).map(|i| ((i * 37 + i / 5) % 251) as u8).collect();
+        let fast = window_min(&map, w, h, r);
+        for y in 0..h {
+            for x in 0..w {
+                let slow = (y.saturating_sub(r)..=(y + r).min(h - 1))
+                    .flat_map(|yy| {
+                        (x.saturating_sub(r)..=(x + r).min(w - 1)).map(move |xx| (xx, yy))
+                    })
+                    .map(|(xx, yy)| map[yy * w + xx])
+                    .min();
+                assert_eq!(Some(fast[y * w + x]), slow, "({x}, {y})");
+            }
+        }
+    }
+}
