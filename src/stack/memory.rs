@@ -9,6 +9,7 @@
 
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
 use super::params::{FuseParams, Method};
+use super::spill;
 use std::fmt;
 
 /// Label bands are whole rows of the graph cut's 64-pixel tiles.
@@ -140,8 +141,13 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     } else {
         (fit_rows / grid).max(least / grid) * grid
     };
+    // Taking the spill out: the frames, the label map and the un-mixing's own buffers.
+    let unmix = match graphcut && p.spill {
+        true => frames + px + spill::working_bytes(s.frames, s.width, s.height, s.channels),
+        false => 0,
+    };
     let peak_of = |k: usize, label_rows: usize, rows: usize| {
-        let stages = [register(k), warp, labels(label_rows), compose(rows)];
+        let stages = [register(k), warp, labels(label_rows), unmix, compose(rows)];
         RUNTIME + stages.into_iter().max().unwrap_or(0)
     };
     Plan {

@@ -124,6 +124,22 @@ impl std::fmt::Display for Unmixed {
     }
 }
 
+/// Bytes [`unmix`] holds besides the frames, for the memory plan: the reduced frames in both
+/// lights, the region masks (before and after refinement) and their interiors, one far frame's
+/// spill, and a few full-size maps of one byte a pixel.
+pub fn working_bytes(frames: usize, width: usize, height: usize, channels: usize) -> usize {
+    let f = reduction(width, height);
+    let reduced = width.div_ceil(f) * height.div_ceil(f);
+    4 * reduced * (2 * frames * channels + 3 * frames + 2 * (channels + 1)) + 8 * width * height
+}
+
+/// The factor the working resolution is reduced by: the least that fits [`WORK_PIXELS`].
+fn reduction(width: usize, height: usize) -> usize {
+    (1..)
+        .find(|&f| width.div_ceil(f) * height.div_ceil(f) <= WORK_PIXELS)
+        .expect("a factor as large as the image fits")
+}
+
 /// Un-mixes every frame in place, given the label map and that lower frame indices are nearer
 /// (`nearest_first`) or farther. Where the near side of a step is mislabelled (a farther frame
 /// taken where the near object is, which shows the background through the object's edge), the
@@ -148,9 +164,7 @@ pub fn unmix<T: Sample>(
     debug_assert_eq!(labels.len(), w * h);
     // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
     let frame_of = |d: usize| if nearest_first { d } else { n - 1 - d };
-    let factor = (1..)
-        .find(|&f| w.div_ceil(f) * h.div_ceil(f) <= WORK_PIXELS)
-        .expect("a factor as large as the image fits");
+    let factor = reduction(w, h);
     let reduced: Vec<Vec<Plane>> = (0..n)
         .into_par_iter()
         .map(|d| downsample_area(&frames[frame_of(d)], factor).to_planes())
