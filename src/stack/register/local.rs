@@ -320,33 +320,36 @@ fn lucas_kanade_step(a: &Plane, b: &Plane, f: &mut Flow) {
             bilinear(b, x, y)
         })
         .collect();
-    // Per pixel: gx², gx·gy, gy², gx·e, gy·e with the mean gradient of both images.
-    let mut prods: Vec<Vec<f32>> = vec![vec![0.0; w * h]; 5];
-    let grad = |p: &[f32], i: usize, step: usize, lo: bool, hi: bool| -> f32 {
-        if lo || hi {
-            return f32::NAN;
-        }
-        0.5 * (p[i + step] - p[i - step])
-    };
-    for y in 0..h {
-        for x in 0..w {
+    // Per pixel: gx², gx·gy, gy², gx·e, gy·e with the mean gradient of both images, a row at a
+    // time in parallel; zero where a gradient or the residual is undefined.
+    let mut prods = vec![[0.0f32; 5]; w * h];
+    prods.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let ey = y == 0 || y + 1 == h;
+        for (x, out) in row.iter_mut().enumerate() {
             let i = y * w + x;
-            let (ex, ey) = (x == 0 || x + 1 == w, y == 0 || y + 1 == h);
-            let gx = 0.5 * (grad(&a.data, i, 1, ex, false) + grad(&bw, i, 1, ex, false));
-            let gy = 0.5 * (grad(&a.data, i, w, ey, false) + grad(&bw, i, w, ey, false));
+            let ex = x == 0 || x + 1 == w;
+            if ex || ey {
+                continue;
+            }
+            let gx = 0.25 * ((a.data[i + 1] - a.data[i - 1]) + (bw[i + 1] - bw[i - 1]));
+            let gy = 0.25 * ((a.data[i + w] - a.data[i - w]) + (bw[i + w] - bw[i - w]));
             let e = bw[i] - a.data[i];
             if gx.is_nan() || gy.is_nan() || e.is_nan() {
                 continue;
             }
-            let v = [gx * gx, gx * gy, gy * gy, gx * e, gy * e];
-            for (p, v) in prods.iter_mut().zip(v) {
-                p[i] = v;
-            }
+            *out = [gx * gx, gx * gy, gy * gy, gx * e, gy * e];
         }
-    }
-    let pooled: Vec<Plane> = prods
+    });
+    let pooled: Vec<Plane> = (0..5)
         .into_par_iter()
-        .map(|p| pool(&Plane::from_vec(w, h, 1, p)))
+        .map(|k| {
+            pool(&Plane::from_vec(
+                w,
+                h,
+                1,
+                prods.iter().map(|v| v[k]).collect(),
+            ))
+        })
         .collect();
     let energy = pooled[0].data.iter().chain(&pooled[2].data).sum::<f32>() / (2 * w * h) as f32;
     let ridge = RIDGE * energy + 1e-12;
