@@ -277,124 +277,73 @@ pub fn labelling_energy<T: Sample>(
     energy(w, h, labels, &Level::new(frames, &amps, p.lambda, p))
 }
 
-/// One window's problem gathered into contiguous memory: for each pixel, the costs of just the
-/// labels its solve reads there (its own, its offer and its free neighbours' offers), for the
-/// window and a ring of fixed pixels around it. Reading ten full-size frames at scattered
-/// addresses for every edge of every move is what made the solve slow; gathering every label
-/// offered in the window at every pixel made the gather cost frames × pixels instead. A label
-/// that spreads to a pixel it was not offered at (rare) is read from the level.
-struct TileCosts<'l, 'a, T> {
-    level: &'l Level<'a, T>,
-    /// The window grid's top-left pixel on the level, its width and the level's width.
-    origin: (usize, usize),
-    width: usize,
-    level_width: usize,
-    /// Label → its column in `index` (`u16::MAX`: offered nowhere in the window).
-    slot: [u16; 256],
+/// One tile's problem gathered into contiguous memory: the costs of the few labels worth trying,
+/// for the tile and a ring of fixed pixels around it. Reading ten full-size frames at scattered
+/// addresses for every edge of every move is what made the solve slow.
+struct TileCosts<T> {
+    /// Label → slot in the tables below.
+    slot: [u8; 256],
     slots: usize,
-    /// `[pixel][slot]`: where that label's costs at that pixel sit in `unary` and (times the
-    /// channels) `colors`; `u32::MAX` where they were not gathered. Found in one step: the
-    /// expansion reads costs far more often than it gathers them.
-    index: Vec<u32>,
+    channels: usize,
+    /// `[pixel][slot][channel]` colours.
     colors: Vec<T>,
+    /// `[pixel][slot]` focus costs.
     unary: Vec<i32>,
+    kappa: i32,
 }
 
-impl<'l, 'a, T: Sample> TileCosts<'l, 'a, T> {
-    /// Gathers the costs the expansion of `offers` over `local`, whose top-left pixel is
-    /// `(x0, y0)` of `level` (`width` wide), reads.
+impl<T: Sample> TileCosts<T> {
+    /// Gathers the rectangle `(x0, y0, w, h)` of `level` for `labels`.
     fn gather(
-        level: &'l Level<'a, T>,
-        (x0, y0, level_width): (usize, usize, usize),
-        local: &Grid,
-        offers: &Offers,
+        level: &Level<T>,
+        width: usize,
+        rect: (usize, usize, usize, usize),
+        labels: &[u8],
     ) -> Self {
-        let (w, h) = (local.width, local.height);
-        let mut offered = [false; 256];
-        for &l in &offers.labels {
-            offered[l as usize] = true;
+        let (x0, y0, w, h) = rect;
+        let mut slot = [u8::MAX; 256];
+        for (k, &l) in labels.iter().enumerate() {
+            slot[l as usize] = k as u8;
         }
-        // Columns in label order.
-        let mut slot = [u16::MAX; 256];
-        for (k, l) in (0..256).filter(|&l| offered[l]).enumerate() {
-            slot[l] = k as u16;
-        }
-        let slots = offered.iter().filter(|&&o| o).count();
-        let mut index = vec![u32::MAX; w * h * slots];
-        let (mut colors, mut unary) = (Vec::new(), Vec::new());
-        let mut need = Vec::new();
-        for p in 0..w * h {
-            need.clear();
-            need.extend_from_slice(offers.of(p));
-            for q in neighbours(w, h, p) {
-                need.extend_from_slice(offers.of(q));
-            }
-            if need.is_empty() {
-                continue;
-            }
-            need.push(local.labels[p]);
-            let g = (y0 + p / w) * level_width + x0 + p % w;
-            for &l in &need {
-                let s = slot[l as usize];
-                if s == u16::MAX || index[p * slots + s as usize] != u32::MAX {
-                    continue;
+        let (ns, ch) = (labels.len(), level.channels);
+        let mut colors = Vec::with_capacity(w * h * ns * ch);
+        let mut unary = Vec::with_capacity(w * h * ns);
+        for y in y0..y0 + h {
+            for x in x0..x0 + w {
+                let p = y * width + x;
+                for &l in labels {
+                    colors.extend_from_slice(level.colors(p, l));
+                    unary.push(level.unary(p, l));
                 }
-                index[p * slots + s as usize] = unary.len() as u32;
-                colors.extend_from_slice(level.colors(g, l));
-                unary.push(level.unary(g, l));
             }
         }
         Self {
-            level,
-            origin: (x0, y0),
-            width: w,
-            level_width,
             slot,
-            slots,
-            index,
+            slots: ns,
+            channels: ch,
             colors,
             unary,
+            kappa: level.kappa,
         }
-    }
-
-    /// Where label `l`'s costs at `p` were gathered, if they were.
-    #[inline]
-    fn find(&self, p: usize, l: u8) -> Option<usize> {
-        let s = self.slot[l as usize];
-        if s == u16::MAX {
-            return None;
-        }
-        let i = self.index[p * self.slots + s as usize];
-        (i != u32::MAX).then_some(i as usize)
-    }
-
-    /// Pixel `p`'s index on the level.
-    fn on_level(&self, p: usize) -> usize {
-        (self.origin.1 + p / self.width) * self.level_width + self.origin.0 + p % self.width
     }
 
     #[inline]
     fn colors(&self, p: usize, l: u8) -> &[T] {
-        let ch = self.level.channels;
-        match self.find(p, l) {
-            Some(i) => &self.colors[i * ch..(i + 1) * ch],
-            None => self.level.colors(self.on_level(p), l),
-        }
+        let ch = self.channels;
+        let i = (p * self.slots + self.slot[l as usize] as usize) * ch;
+        &self.colors[i..i + ch]
     }
 }
 
-impl<T: Sample> Costs for TileCosts<'_, '_, T> {
+impl<T: Sample> Costs for TileCosts<T> {
     #[inline]
     fn unary(&self, p: usize, l: u8) -> i32 {
-        match self.find(p, l) {
-            Some(i) => self.unary[i],
-            None => self.level.unary(self.on_level(p), l),
-        }
+        self.unary[p * self.slots + self.slot[l as usize] as usize]
     }
 
     #[inline]
     fn pairwise(&self, p: usize, q: usize, lp: u8, lq: u8) -> i32 {
-        seam(|p, l| self.colors(p, l), self.level.kappa, p, q, lp, lq)
+        seam(|p, l| self.colors(p, l), self.kappa, p, q, lp, lq)
     }
 }
 
@@ -678,9 +627,10 @@ fn solve_window<T: Sample>(
         labels: &labels,
         free: Some(&free),
     };
-    let offers = Offers::new(&local, (rx0, ry0, gw), level, params.candidates)?;
-    let costs = TileCosts::gather(level, (rx0, ry0, gw), &local, &offers);
-    let out = expand(&local, offers.moves(), &costs, params.max_cycles, solver);
+    let moves = moves(&local, (rx0, ry0, gw), level, params.candidates)?;
+    let offered: Vec<u8> = moves.iter().map(|m| m.label).collect();
+    let costs = TileCosts::gather(level, gw, (rx0, ry0, rw, rh), &offered);
+    let out = expand(&local, moves, &costs, params.max_cycles, solver);
     let (ox, oy) = (win.x0 - rx0, win.y0 - ry0);
     Some(
         (0..win.h)
@@ -693,63 +643,45 @@ fn solve_window<T: Sample>(
     )
 }
 
-/// The labels each free pixel of a window's grid is offered: its `k` sharpest frames and the
-/// labels it and its 4 neighbours hold.
-struct Offers {
-    /// Pixel `p`'s offer is `labels[start[p]..start[p + 1]]`, ascending; empty where fixed.
-    start: Vec<u32>,
-    labels: Vec<u8>,
-}
-
-impl Offers {
-    /// The offers on `local`, at `(x0, y0)` of a level `width` wide; `None` when no pixel is
-    /// free.
-    fn new<T: Sample>(
-        local: &Grid,
-        (x0, y0, width): (usize, usize, usize),
-        level: &Level<T>,
-        k: usize,
-    ) -> Option<Self> {
-        let (w, h) = (local.width, local.height);
-        let mut start = Vec::with_capacity(w * h + 1);
-        start.push(0);
-        let (mut labels, mut offer) = (Vec::new(), Vec::new());
-        for y in 0..h {
-            for x in 0..w {
-                let p = y * w + x;
-                if local.free.is_none_or(|f| f[p]) {
-                    level.sharpest((y0 + y) * width + x0 + x, k, &mut offer);
-                    offer.push(local.labels[p]);
-                    offer.extend(neighbours(w, h, p).map(|q| local.labels[q]));
-                    offer.sort_unstable();
-                    offer.dedup();
-                    labels.extend_from_slice(&offer);
-                }
-                start.push(labels.len() as u32);
+/// The expansion moves of a window's grid (`local`, at `(x0, y0)` of a level `width` wide): each
+/// free pixel is offered its `k` sharpest frames and the labels it and its 4 neighbours hold.
+/// In label order; `None` when no pixel is free.
+fn moves<T: Sample>(
+    local: &Grid,
+    (x0, y0, width): (usize, usize, usize),
+    level: &Level<T>,
+    k: usize,
+) -> Option<Vec<Move>> {
+    let (w, h) = (local.width, local.height);
+    let mut pixels: Vec<Vec<u32>> = vec![Vec::new(); 256];
+    let (mut top, mut offer) = (Vec::new(), Vec::new());
+    let mut any_free = false;
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            if !local.free.is_none_or(|f| f[p]) {
+                continue;
             }
-        }
-        (!labels.is_empty()).then_some(Self { start, labels })
-    }
-
-    fn of(&self, p: usize) -> &[u8] {
-        &self.labels[self.start[p] as usize..self.start[p + 1] as usize]
-    }
-
-    /// One expansion move per label offered anywhere, over the pixels offered it, in label
-    /// order.
-    fn moves(&self) -> Vec<Move> {
-        let mut pixels: Vec<Vec<u32>> = vec![Vec::new(); 256];
-        for p in 0..self.start.len() - 1 {
-            for &l in self.of(p) {
+            any_free = true;
+            level.sharpest((y0 + y) * width + x0 + x, k, &mut top);
+            offer.clear();
+            offer.extend_from_slice(&top);
+            offer.push(local.labels[p]);
+            offer.extend(neighbours(w, h, p).map(|q| local.labels[q]));
+            offer.sort_unstable();
+            offer.dedup();
+            for &l in &offer {
                 pixels[l as usize].push(p as u32);
             }
         }
+    }
+    any_free.then(|| {
         (0..=255u8)
             .zip(pixels)
             .filter(|(_, px)| !px.is_empty())
             .map(|(label, pixels)| Move { label, pixels })
             .collect()
-    }
+    })
 }
 
 #[cfg(test)]
@@ -774,62 +706,5 @@ mod tests {
             assert_eq!(top, want, "k = {k}");
         }
         assert_eq!(level.sharpest_labels(1), [4]);
-    }
-
-    /// A window's gathered costs are the level's, for every pixel and label the solve may read,
-    /// gathered or not; and only what the offers need is gathered.
-    #[test]
-    fn gathered_costs_are_the_levels_and_only_those_needed() {
-        let mut seed = 0x2545f4914f6cdd1du64;
-        let mut rand = move |n: u64| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed % n
-        };
-        let (w, h, n) = (12, 10, 6);
-        let frames: Vec<Image<u8>> = (0..n)
-            .map(|_| {
-                let mut f = Image::new(w, h, 3);
-                f.data.iter_mut().for_each(|v| *v = rand(256) as u8);
-                f
-            })
-            .collect();
-        let amps = Amps::new(
-            0,
-            (0..n)
-                .map(|_| (0..w * h).map(|_| rand(4000) as u16).collect())
-                .collect(),
-        );
-        let level = Level::new(&frames, &amps, 0.3, &GraphCutParams::default());
-        let (x0, y0, lw, lh) = (2, 1, 8, 7);
-        let labels: Vec<u8> = (0..lw * lh).map(|_| rand(n as u64) as u8).collect();
-        // Free pixels in the left half only, so the right half needs nothing.
-        let free: Vec<bool> = (0..lw * lh)
-            .map(|p| p % lw > 0 && p % lw < 3 && p / lw > 0 && p / lw < lh - 1)
-            .collect();
-        let local = Grid {
-            width: lw,
-            height: lh,
-            labels: &labels,
-            free: Some(&free),
-        };
-        let offers = Offers::new(&local, (x0, y0, w), &level, 2).unwrap();
-        let costs = TileCosts::gather(&level, (x0, y0, w), &local, &offers);
-        assert!(costs.unary.len() < lw * lh * costs.slots / 2);
-        let on_level = |p: usize| (y0 + p / lw) * w + x0 + p % lw;
-        for p in 0..lw * lh {
-            for l in 0..n as u8 {
-                assert_eq!(costs.unary(p, l), level.unary(on_level(p), l));
-                for q in neighbours(lw, lh, p) {
-                    for k in 0..n as u8 {
-                        assert_eq!(
-                            costs.pairwise(p, q, l, k),
-                            Costs::pairwise(&level, on_level(p), on_level(q), l, k)
-                        );
-                    }
-                }
-            }
-        }
     }
 }
