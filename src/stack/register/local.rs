@@ -247,8 +247,9 @@ fn flow(a: &Plane, b: &Plane) -> Flow {
         if k < top {
             f = f.expand_to(pa[k].width, pa[k].height);
         }
+        let t = Tensor::new(&pa[k]);
         for _ in 0..ITERATIONS {
-            lucas_kanade_step(&pa[k], &pb[k], &mut f);
+            lucas_kanade_step(&pa[k], &pb[k], &t, &mut f);
         }
     }
     trust(&pa[0], &pb[0], &mut f);
@@ -309,53 +310,100 @@ fn reduce_nan(p: &Plane) -> Plane {
     Plane::from_vec(rv.width, rv.height, 1, data)
 }
 
-/// One Gauss–Newton step of the windowed flow: `b` sampled through `f`, the normal equations of
-/// each pixel's increment pooled over a Gaussian window and solved with a ridge.
-fn lucas_kanade_step(a: &Plane, b: &Plane, f: &mut Flow) {
+/// The pooled structure tensor of a level's reference plane and its ridge: the normal
+/// equations' matrix, which with the reference's gradient alone is the same at every
+/// Lucas–Kanade step of the level, so it is pooled once per level rather than every step.
+struct Tensor {
+    /// Per pixel: the gradient (zero where undefined).
+    grad: Vec<[f32; 2]>,
+    /// Pooled gx² + ridge, gx·gy, gy² + ridge.
+    xx: Vec<f32>,
+    xy: Vec<f32>,
+    yy: Vec<f32>,
+}
+
+impl Tensor {
+    fn new(a: &Plane) -> Tensor {
+        let (w, h) = (a.width, a.height);
+        let mut grad = vec![[0.0f32; 2]; w * h];
+        grad.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            if y == 0 || y + 1 == h {
+                return;
+            }
+            for (x, g) in row.iter_mut().enumerate().take(w - 1).skip(1) {
+                let i = y * w + x;
+                let gx = 0.5 * (a.data[i + 1] - a.data[i - 1]);
+                let gy = 0.5 * (a.data[i + w] - a.data[i - w]);
+                if !(gx.is_nan() || gy.is_nan()) {
+                    *g = [gx, gy];
+                }
+            }
+        });
+        let prod = |f: fn([f32; 2]) -> f32| {
+            pool(&Plane::from_vec(
+                w,
+                h,
+                1,
+                grad.iter().map(|&g| f(g)).collect(),
+            ))
+            .data
+        };
+        let (mut xx, xy, mut yy) = (
+            prod(|[x, _]| x * x),
+            prod(|[x, y]| x * y),
+            prod(|[_, y]| y * y),
+        );
+        let energy = xx.iter().chain(&yy).sum::<f32>() / (2 * w * h) as f32;
+        let ridge = RIDGE * energy + 1e-12;
+        xx.iter_mut().chain(&mut yy).for_each(|v| *v += ridge);
+        Tensor { grad, xx, xy, yy }
+    }
+}
+
+/// One Gauss–Newton step of the windowed flow: `b` sampled through `f`, its residual against
+/// `a` weighted by `a`'s gradient and pooled over a window, each pixel's increment solved with
+/// `a`'s pooled tensor `t`.
+fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) {
     let (w, h) = (a.width, a.height);
-    let bw: Vec<f32> = (0..w * h)
+    // Per pixel: gx·e, gy·e; zero where the residual is undefined (outside the frame).
+    let prods: Vec<[f32; 2]> = (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (x, y) = ((i % w) as f32 + f.dx[i], (i / w) as f32 + f.dy[i]);
-            bilinear(b, x, y)
+            let e = bilinear(b, x, y) - a.data[i];
+            let [gx, gy] = t.grad[i];
+            if e.is_nan() {
+                [0.0; 2]
+            } else {
+                [gx * e, gy * e]
+            }
         })
         .collect();
-    // Per pixel: gx², gx·gy, gy², gx·e, gy·e with the mean gradient of both images.
-    let mut prods: Vec<Vec<f32>> = vec![vec![0.0; w * h]; 5];
-    let grad = |p: &[f32], i: usize, step: usize, lo: bool, hi: bool| -> f32 {
-        if lo || hi {
-            return f32::NAN;
-        }
-        0.5 * (p[i + step] - p[i - step])
-    };
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            let (ex, ey) = (x == 0 || x + 1 == w, y == 0 || y + 1 == h);
-            let gx = 0.5 * (grad(&a.data, i, 1, ex, false) + grad(&bw, i, 1, ex, false));
-            let gy = 0.5 * (grad(&a.data, i, w, ey, false) + grad(&bw, i, w, ey, false));
-            let e = bw[i] - a.data[i];
-            if gx.is_nan() || gy.is_nan() || e.is_nan() {
-                continue;
-            }
-            let v = [gx * gx, gx * gy, gy * gy, gx * e, gy * e];
-            for (p, v) in prods.iter_mut().zip(v) {
-                p[i] = v;
-            }
-        }
-    }
-    let pooled: Vec<Plane> = prods
-        .into_par_iter()
-        .map(|p| pool(&Plane::from_vec(w, h, 1, p)))
-        .collect();
-    let energy = pooled[0].data.iter().chain(&pooled[2].data).sum::<f32>() / (2 * w * h) as f32;
-    let ridge = RIDGE * energy + 1e-12;
-    let [xx, xy, yy, xe, ye] = [0, 1, 2, 3, 4].map(|k| &pooled[k].data);
+    let (xe, ye) = rayon::join(
+        || {
+            pool(&Plane::from_vec(
+                w,
+                h,
+                1,
+                prods.iter().map(|v| v[0]).collect(),
+            ))
+            .data
+        },
+        || {
+            pool(&Plane::from_vec(
+                w,
+                h,
+                1,
+                prods.iter().map(|v| v[1]).collect(),
+            ))
+            .data
+        },
+    );
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
         .enumerate()
         .for_each(|(i, (dx, dy))| {
-            let (a, b, c) = (xx[i] + ridge, xy[i], yy[i] + ridge);
+            let (a, b, c) = (t.xx[i], t.xy[i], t.yy[i]);
             let det = a * c - b * b;
             if det <= 0.0 {
                 return;
