@@ -176,7 +176,7 @@ pub fn fuse<T: Sample>(
             let nearest_first = order.order.assumed() == Order::NearestFirst;
             spill = params
                 .spill
-                .then(|| unmix(&mut frames, &mut labels, nearest_first));
+                .then(|| unmix(&mut frames, &mut labels, coverage, nearest_first));
             let (image, _) = compose(
                 &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),

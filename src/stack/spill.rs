@@ -25,6 +25,7 @@
 //! own edge is composed from its own frame). The fit and the spill are computed at a reduced
 //! resolution (the spill is a blur, smooth by nature) and sampled bilinearly at full size.
 
+use super::align::Coverage;
 use super::blur::{downsample_area, gaussian_blur};
 use super::image::{Image, Plane, Sample};
 use super::srgb;
@@ -47,6 +48,12 @@ const TRACE: f32 = 0.01;
 const GUARD: usize = 2;
 /// How far from a step the labels may have misplaced it, in full-resolution pixels.
 const RING: usize = 8;
+/// A label moves to the near object's frame only where the pixel is clearly the object's: its
+/// squared colour distance to the object's mean under this share of that to the background's
+/// (half the distance). Nearer than the background's alone moved labels on textured far
+/// surfaces whose colours happen to lie near the object's (the committed 4-plane stack's depth
+/// accuracy fell from 91.6 to 89.9 %; with this 90.9 %, PSNR unchanged).
+const RELABEL: f32 = 0.25;
 /// σ of the local mean colours [`refine`] compares, full-resolution pixels.
 const MEAN_SIGMA: f32 = 6.0;
 
@@ -147,6 +154,7 @@ fn reduction(width: usize, height: usize) -> usize {
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],
+    coverage: &[Coverage],
     nearest_first: bool,
 ) -> Unmixed {
     let n = frames.len();
@@ -171,7 +179,9 @@ pub fn unmix<T: Sample>(
         .collect();
     let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
     let masks = region_masks(&depth, w, h, n, factor);
-    let refined = refine(frames, &frame_of, &mut depth, &reduced, &masks, factor);
+    let refined = refine(
+        frames, coverage, &frame_of, &mut depth, &reduced, &masks, factor,
+    );
     out.relabelled = refined.relabelled;
     for (l, &d) in labels.iter_mut().zip(&depth) {
         *l = frame_of(d as usize) as u8;
@@ -311,11 +321,14 @@ struct Refined {
 /// Within [`RING`] pixels of a step from depth `k` to `k + 2` or farther, decides each pixel
 /// by the near frame's own colours: nearer the near object's local mean colour (over where it
 /// is labelled, away from the ring) than the background's (over where depth `k + 2` or farther
-/// is labelled), it is the near object. Labels are taken as they are elsewhere. In the near
+/// is labelled), it is the near object; clearly nearer ([`RELABEL`]) and labelled farther, its
+/// label moves to the near frame (when that frame covers it). Labels are taken as they are
+/// elsewhere. In the near
 /// frame the object is sharp and the background behind it blurred, so the two colours separate
 /// where the label map, which follows contrast, does not.
 fn refine<T: Sample>(
     frames: &[Image<T>],
+    coverage: &[Coverage],
     frame_of: &(dyn Fn(usize) -> usize + Sync),
     depth: &mut [u8],
     reduced: &[Vec<Plane>],
@@ -385,6 +398,10 @@ fn refine<T: Sample>(
                     let Some([inside, behind]) = &means[k] else {
                         continue;
                     };
+                    // Never a label, nor a colour, from a frame that does not reach here.
+                    if !coverage[frame_of(k)].covers(x, y) {
+                        continue;
+                    }
                     let rx = (x as f32 + 0.5) * scale - 0.5;
                     let px = &frames[frame_of(k)].data[i * ch..][..ch];
                     let (mut din, mut dout) = (0.0, 0.0);
@@ -398,7 +415,7 @@ fn refine<T: Sample>(
                     }
                     if din < dout {
                         orow[x] = k as u8;
-                        if drow[x] as usize >= k + 2 {
+                        if drow[x] as usize >= k + 2 && din < RELABEL * dout {
                             drow[x] = k as u8;
                             moved += 1;
                         }
@@ -779,6 +796,10 @@ mod tests {
         (frames, background)
     }
 
+    fn full(frames: usize) -> Vec<Coverage> {
+        vec![Coverage::full(SIZE, SIZE); frames]
+    }
+
     fn distance(i: usize) -> f32 {
         let (x, y) = ((i % SIZE) as f32, (i / SIZE) as f32);
         ((x - CENTRE).powi(2) + (y - CENTRE).powi(2)).sqrt() - RADIUS
@@ -818,7 +839,7 @@ mod tests {
             let (mut frames, background) = scene(light);
             let before = frames.clone();
             let mut l = labels();
-            let out = unmix(&mut frames, &mut l, true);
+            let out = unmix(&mut frames, &mut l, &full(3), true);
             assert_eq!(out.light, Some(light));
             let pair = out.pairs.iter().find(|p| (p.near, p.far) == (0, 2));
             let sigma = pair.expect("the disc's blur in frame 2 is fitted").sigma;
@@ -831,11 +852,19 @@ mod tests {
                 .into_iter()
                 .all(|i| frames[2].data[i * 3] == before[2].data[i * 3]));
             assert_eq!((&frames[0], &frames[1]), (&before[0], &before[1]));
-            // The right side's 3 px the labels missed go back to the disc's frame.
-            let missed = (0..SIZE * SIZE)
-                .filter(|&i| i % SIZE > SIZE / 2 + 8 && (-2.5..-0.5).contains(&distance(i)));
+            // Of the right side's 3 px the labels missed, the pixels clearly the disc's colour go
+            // back to its frame (the stripes make the rest too close to call); outside the disc
+            // no label moves.
+            let right = |i: usize| i % SIZE > SIZE / 2 + 8;
+            let missed =
+                (0..SIZE * SIZE).filter(|&i| right(i) && (-2.5..-0.5).contains(&distance(i)));
             let (moved, all) = missed.fold((0, 0), |(m, a), i| (m + usize::from(l[i] == 0), a + 1));
-            assert!(moved * 10 >= all * 9, "{light:?}: {moved} of {all} moved");
+            assert!(moved * 3 >= all, "{light:?}: {moved} of {all} moved");
+            let outside = (0..SIZE * SIZE).filter(|&i| right(i) && distance(i) > 1.0);
+            assert!(
+                outside.into_iter().all(|i| l[i] == 2),
+                "{light:?}: a label moved outside"
+            );
         }
     }
 
@@ -843,10 +872,10 @@ mod tests {
     fn a_stack_given_farthest_first_is_un_mixed_the_same() {
         let (frames, _) = scene(Light::Linear);
         let (mut forward, mut fl) = (frames.clone(), labels());
-        unmix(&mut forward, &mut fl, true);
+        unmix(&mut forward, &mut fl, &full(3), true);
         let mut reversed: Vec<Image<u8>> = frames.into_iter().rev().collect();
         let mut rl: Vec<u8> = labels().iter().map(|&l| 2 - l).collect();
-        let out = unmix(&mut reversed, &mut rl, false);
+        let out = unmix(&mut reversed, &mut rl, &full(3), false);
         assert_eq!(reversed[0], forward[2]);
         assert!(rl.iter().zip(&fl).all(|(&r, &f)| r == 2 - f));
         assert!(out.pairs.iter().all(|p| (p.near, p.far) == (2, 0)));
@@ -864,7 +893,8 @@ mod tests {
             (frames.clone(), vec![1; SIZE * SIZE]),
         ] {
             let (before, labels_before) = (f.clone(), l.clone());
-            let out = unmix(&mut f, &mut l, true);
+            let cover = full(f.len());
+            let out = unmix(&mut f, &mut l, &cover, true);
             assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
             assert_eq!((f, l), (before, labels_before));
         }
