@@ -28,7 +28,8 @@ pub struct FuseArgs {
     /// far one, the frame focused on the near object shows their edge crisp, the frame focused
     /// behind it shows it blurred. Its `order` line says which order it found and on how many
     /// edge pixels; with fewer than 200 or no 2/3 majority of their contrast (a flat subject, a
-    /// single plane) it says so and assumes nearest first. Today the order is only reported.
+    /// single plane) it says so and assumes nearest first. The spill removal takes near objects'
+    /// defocus out of the farther frames in the order found (or assumed).
     #[arg(value_name = "FRAME")]
     pub frames: Vec<PathBuf>,
     /// Frame whose geometry the output takes (0-based; default: the middle frame).

@@ -5,7 +5,7 @@ use super::compose::{compose, Select};
 use super::graphcut::label_stack;
 use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
-use super::order::{focus_order, Order, OrderEvidence};
+use super::order::{focus_order, OrderEvidence};
 use super::params::{FuseParams, Method};
 use super::register::{register_with, Placement, RegisterError, Registration};
 use super::spill::{unmix, Unmixed};
@@ -173,10 +173,9 @@ pub fn fuse<T: Sample>(
             lap(Stage::Labels, &mut timings);
             go_on(progress)?;
             // Counted in the compose: it prepares the frames for it.
-            let nearest_first = order.order.assumed() == Order::NearestFirst;
             spill = params
                 .spill
-                .then(|| unmix(&mut frames, &mut labels, coverage, nearest_first));
+                .then(|| unmix(&mut frames, &mut labels, coverage, order.order));
             let (image, _) = compose(
                 &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),

@@ -72,11 +72,11 @@ impl Order {
         }
     }
 
-    /// Which of labels (frames) `k` and `l` is focused nearer, by the assumed order.
-    pub fn nearer(self, k: u8, l: u8) -> u8 {
+    /// The frame at depth rank `depth` (0 nearest) of a stack of `n`, by the assumed order.
+    pub fn frame_at(self, depth: usize, n: usize) -> usize {
         match self.assumed() {
-            Order::FarthestFirst => k.max(l),
-            _ => k.min(l),
+            Order::FarthestFirst => n - 1 - depth,
+            _ => depth,
         }
     }
 }
@@ -341,7 +341,7 @@ mod tests {
             let r = focus_order(&reversed, &labels(2, 0, grow), &full(3));
             assert_eq!(r.order, Order::FarthestFirst, "grown {grow}: {r:?}");
             assert_eq!(r.votes, e.votes);
-            assert_eq!(Order::FarthestFirst.nearer(0, 2), 2);
+            assert_eq!(Order::FarthestFirst.frame_at(0, 3), 2);
         }
     }
 
@@ -384,7 +384,7 @@ mod tests {
             (Order::Unknown, 0, 0.5)
         );
         assert_eq!(e.order.assumed(), Order::NearestFirst);
-        assert_eq!(e.order.nearer(3, 1), 1);
+        assert_eq!(e.order.frame_at(1, 4), 1);
         assert!(e.to_string().contains("nearest focus first assumed"), "{e}");
         // The disc's left half near first, its right half as if shot the other way round.
         let reversed: Vec<Plane> = frames.iter().rev().cloned().collect();

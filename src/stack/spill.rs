@@ -28,6 +28,7 @@
 use super::align::Coverage;
 use super::blur::{downsample_area, gaussian_blur};
 use super::image::{Image, Plane, Sample};
+use super::order::Order;
 use super::srgb;
 use rayon::prelude::*;
 
@@ -131,13 +132,13 @@ impl std::fmt::Display for Unmixed {
     }
 }
 
-/// Bytes [`unmix`] holds besides the frames, for the memory plan: the reduced frames in both
-/// lights, the region masks (before and after refinement) and their interiors, one far frame's
+/// Bytes [`unmix`] holds besides the frames, for the memory plan: the reduced frames in one
+/// light and their luma in both, the region masks (before and after refinement) and their interiors, one far frame's
 /// spill, and a few full-size maps of one byte a pixel.
 pub fn working_bytes(frames: usize, width: usize, height: usize, channels: usize) -> usize {
     let f = reduction(width, height);
     let reduced = width.div_ceil(f) * height.div_ceil(f);
-    4 * reduced * (2 * frames * channels + 3 * frames + 2 * (channels + 1)) + 8 * width * height
+    4 * reduced * (frames * channels + 5 * frames + 2 * (channels + 1)) + 8 * width * height
 }
 
 /// The factor the working resolution is reduced by: the least that fits [`WORK_PIXELS`].
@@ -147,15 +148,15 @@ fn reduction(width: usize, height: usize) -> usize {
         .expect("a factor as large as the image fits")
 }
 
-/// Un-mixes every frame in place, given the label map and that lower frame indices are nearer
-/// (`nearest_first`) or farther. Where the near side of a step is mislabelled (a farther frame
+/// Un-mixes every frame in place, given the label map and the stack's focus order (an
+/// `Unknown` order is taken as nearest first). Where the near side of a step is mislabelled (a farther frame
 /// taken where the near object is, which shows the background through the object's edge), the
 /// labels are moved to the near object's frame.
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],
     coverage: &[Coverage],
-    nearest_first: bool,
+    order: Order,
 ) -> Unmixed {
     let n = frames.len();
     let mut out = Unmixed {
@@ -171,7 +172,7 @@ pub fn unmix<T: Sample>(
     let (w, h) = (frames[0].width, frames[0].height);
     debug_assert_eq!(labels.len(), w * h);
     // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
-    let frame_of = |d: usize| if nearest_first { d } else { n - 1 - d };
+    let frame_of = |d: usize| order.frame_at(d, n);
     let factor = reduction(w, h);
     let reduced: Vec<Vec<Plane>> = (0..n)
         .into_par_iter()
@@ -187,25 +188,28 @@ pub fn unmix<T: Sample>(
         *l = frame_of(d as usize) as u8;
     }
     let masks = region_masks(&refined.objects, w, h, n, factor);
-    let linear: Vec<Vec<Plane>> = reduced
+    // The fit needs only luma, in both lights; the colour is decoded to linear light only when
+    // that is the light chosen, so one light's reduced frames are held, never both.
+    let (display, linear): (Vec<Plane>, Vec<Plane>) = reduced
         .par_iter()
-        .map(|planes| {
-            let decode = |p: &Plane| Plane {
-                data: p.data.iter().map(|&v| srgb::decode(v)).collect(),
-                ..*p
-            };
-            planes.iter().map(decode).collect()
-        })
-        .collect();
-    let lights = [(Light::Linear, &linear[..]), (Light::Display, &reduced[..])];
-    let (light, pairs) = fit(lights, &masks, factor);
+        .map(|planes| (luma(planes), luma(&decode(planes))))
+        .unzip();
+    let (light, pairs) = fit(
+        [(Light::Linear, linear), (Light::Display, display)],
+        &masks,
+        factor,
+    );
     let Some(light) = light else {
         return out;
     };
-    let mixed = match light {
-        Light::Linear => &linear,
-        Light::Display => &reduced,
-    };
+    let mut mixed = reduced;
+    if light == Light::Linear {
+        mixed.par_iter_mut().for_each(|planes| {
+            for v in planes.iter_mut().flat_map(|p| p.data.iter_mut()) {
+                *v = srgb::decode(*v);
+            }
+        });
+    }
     out.light = Some(light);
     let nearest = window_min(&refined.objects, w, h, GUARD);
     for l in 0..n {
@@ -213,7 +217,7 @@ pub fn unmix<T: Sample>(
         if mine.is_empty() {
             continue;
         }
-        let spill = Spill::of(mixed, &masks, &mine, factor);
+        let spill = Spill::of(&mixed, &masks, &mine, factor);
         let is_guarded = |p: usize| nearest[p] as usize + 2 <= l;
         out.changed[frame_of(l)] = spill.apply(&mut frames[frame_of(l)], &is_guarded, light);
     }
@@ -226,6 +230,17 @@ pub fn unmix<T: Sample>(
         })
         .collect();
     out
+}
+
+/// Reduced colour planes decoded from sRGB to linear light.
+fn decode(planes: &[Plane]) -> Vec<Plane> {
+    planes
+        .iter()
+        .map(|p| Plane {
+            data: p.data.iter().map(|&v| srgb::decode(v)).collect(),
+            ..*p
+        })
+        .collect()
 }
 
 /// Per depth rank, the share of each reduced pixel it covers in `depth`: one pass counting
@@ -484,17 +499,16 @@ fn luma(planes: &[Plane]) -> Plane {
 /// than 3σ, so the background around the region does not enter), in both lights. Returns the
 /// light whose fits leave the smaller residual (geometric mean of the residuals relative to
 /// frame `l`'s variance there) and its pairs; `None` when nothing could be fitted. `lights` are
-/// the reduced frames in each light.
+/// the reduced frames' luma in each light.
 fn fit(
-    lights: [(Light, &[Vec<Plane>]); 2],
+    lights: [(Light, Vec<Plane>); 2],
     masks: &[Plane],
     factor: usize,
 ) -> (Option<Light>, Vec<Pair>) {
     let n = masks.len();
     let interiors: Vec<Vec<u32>> = masks.par_iter().map(inside_distance).collect();
     let mut best: Option<(f64, Light, Vec<Pair>)> = None;
-    for (light, frames) in lights {
-        let lumas: Vec<Plane> = frames.par_iter().map(|p| luma(p)).collect();
+    for (light, lumas) in lights {
         let fits: Vec<(Pair, f64)> = (0..n)
             .into_par_iter()
             .flat_map_iter(|k| {
@@ -839,7 +853,7 @@ mod tests {
             let (mut frames, background) = scene(light);
             let before = frames.clone();
             let mut l = labels();
-            let out = unmix(&mut frames, &mut l, &full(3), true);
+            let out = unmix(&mut frames, &mut l, &full(3), Order::NearestFirst);
             assert_eq!(out.light, Some(light));
             let pair = out.pairs.iter().find(|p| (p.near, p.far) == (0, 2));
             let sigma = pair.expect("the disc's blur in frame 2 is fitted").sigma;
@@ -872,10 +886,10 @@ mod tests {
     fn a_stack_given_farthest_first_is_un_mixed_the_same() {
         let (frames, _) = scene(Light::Linear);
         let (mut forward, mut fl) = (frames.clone(), labels());
-        unmix(&mut forward, &mut fl, &full(3), true);
+        unmix(&mut forward, &mut fl, &full(3), Order::NearestFirst);
         let mut reversed: Vec<Image<u8>> = frames.into_iter().rev().collect();
         let mut rl: Vec<u8> = labels().iter().map(|&l| 2 - l).collect();
-        let out = unmix(&mut reversed, &mut rl, &full(3), false);
+        let out = unmix(&mut reversed, &mut rl, &full(3), Order::FarthestFirst);
         assert_eq!(reversed[0], forward[2]);
         assert!(rl.iter().zip(&fl).all(|(&r, &f)| r == 2 - f));
         assert!(out.pairs.iter().all(|p| (p.near, p.far) == (2, 0)));
@@ -894,7 +908,7 @@ mod tests {
         ] {
             let (before, labels_before) = (f.clone(), l.clone());
             let cover = full(f.len());
-            let out = unmix(&mut f, &mut l, &cover, true);
+            let out = unmix(&mut f, &mut l, &cover, Order::NearestFirst);
             assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
             assert_eq!((f, l), (before, labels_before));
         }
