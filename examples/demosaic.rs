@@ -1,0 +1,336 @@
+//! Where the demosaic's error is, and what it costs: the figures issue 15 item 4 asks for, in
+//! one run, so that two builds can be compared back to back.
+//!
+//! `demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N]`
+//!
+//! - Simulator frames (the unit tests' three truths, 240×180, RGGB and GBRG), sharp and through
+//!   a 0.5 px lens blur: PSNR over all channels, per channel, and on edges (pixels whose truth
+//!   has a luma gradient above 16 in 8-bit units) against the flat rest.
+//! - Real frames (every JPEG in each `--real` directory, taken as linear truth once decoded),
+//!   mosaicked RGGB: the same figures.
+//! - The fused gap (unless `--no-fuse`): simulated stacks of seeds 5 and 17 (5 planes, 256×192,
+//!   linear light, as in `tests/develop.rs`), fused from developed mosaics and from the RGB
+//!   frames, sharp and blurred; PSNR against the truth and the gap.
+//! - False colour and zipper on grey edges, as in the unit tests.
+//! - Time per 3 MP frame (2048×1536 of a simulated scene): median of `--runs` (default 5) on all
+//!   cores and on one. `--tune` applies the product's allocator setting (`malloc::tune`) first.
+
+use anyhow::{bail, Context, Result};
+use focusd::develop::demosaic::demosaic;
+use focusd::develop::{encode, srgb_decode, BayerOrder, Developer, Mosaic, IDENTITY};
+use focusd::imageio::load_rgb8;
+use focusd::sim::{render, SimParams};
+use focusd::stack::blur::gaussian_blur_channels;
+use focusd::stack::fuse::fuse;
+use focusd::stack::image::Image;
+use focusd::stack::metrics::psnr;
+use focusd::stack::params::FuseParams;
+use focusd::stack::NoProgress;
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn linear(img: &Image<u8>) -> Image<f32> {
+    Image::from_vec(
+        img.width,
+        img.height,
+        img.channels,
+        img.data
+            .iter()
+            .map(|&v| srgb_decode(f32::from(v) / 255.0))
+            .collect(),
+    )
+}
+
+fn db(se: f64, n: usize) -> f64 {
+    if se == 0.0 {
+        return 120.0;
+    }
+    10.0 * (255.0f64 * 255.0 * n as f64 / se).log10()
+}
+
+/// Squared errors by channel, split by edge and flat pixels, leaving out `margin` px.
+#[derive(Default, Clone, Copy)]
+struct Errors {
+    se: [[f64; 3]; 2],
+    n: [usize; 2],
+}
+
+impl Errors {
+    fn of(out: &Image<u8>, truth: &Image<u8>, margin: usize) -> Errors {
+        let (w, h) = (truth.width, truth.height);
+        let luma = |x: usize, y: usize| {
+            0.299 * f32::from(truth.at(x, y, 0))
+                + 0.587 * f32::from(truth.at(x, y, 1))
+                + 0.114 * f32::from(truth.at(x, y, 2))
+        };
+        let mut e = Errors::default();
+        for y in margin.max(1)..h - margin.max(1) {
+            for x in margin.max(1)..w - margin.max(1) {
+                let gx = luma(x + 1, y) - luma(x - 1, y);
+                let gy = luma(x, y + 1) - luma(x, y - 1);
+                let edge = usize::from((gx * gx + gy * gy).sqrt() / 2.0 > 16.0);
+                e.n[edge] += 1;
+                for c in 0..3 {
+                    let d = f64::from(out.at(x, y, c)) - f64::from(truth.at(x, y, c));
+                    e.se[edge][c] += d * d;
+                }
+            }
+        }
+        e
+    }
+
+    fn add(&mut self, o: &Errors) {
+        for k in 0..2 {
+            self.n[k] += o.n[k];
+            for c in 0..3 {
+                self.se[k][c] += o.se[k][c];
+            }
+        }
+    }
+
+    fn line(&self) -> String {
+        let n = self.n[0] + self.n[1];
+        let all: f64 = self.se.iter().flatten().sum();
+        let ch = |c: usize| db(self.se[0][c] + self.se[1][c], n);
+        let part = |k: usize| db(self.se[k].iter().sum(), 3 * self.n[k]);
+        format!(
+            "{:.2} dB (R {:.2} G {:.2} B {:.2}; edges {:.2} on {:.0} %, flat {:.2})",
+            db(all, 3 * n),
+            ch(0),
+            ch(1),
+            ch(2),
+            part(1),
+            100.0 * self.n[1] as f64 / n.max(1) as f64,
+            part(0)
+        )
+    }
+}
+
+fn developed(m: &Mosaic) -> Image<u8> {
+    encode(&demosaic(m))
+}
+
+fn simulated() {
+    for sigma in [0.0f32, 0.5] {
+        let mut total = Errors::default();
+        for seed in [3u64, 11, 29] {
+            let truth = render(&SimParams {
+                width: 240,
+                height: 180,
+                planes: 2,
+                seed,
+                noise_sigma: 0.0,
+                ..SimParams::default()
+            })
+            .truth;
+            let lin = gaussian_blur_channels(&linear(&truth), sigma);
+            let truth = encode(&lin);
+            for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
+                let out = developed(&Mosaic::sample(&lin, order));
+                let e = Errors::of(&out, &truth, 2);
+                total.add(&e);
+                println!("sim seed {seed} blur {sigma} {order:?}: {}", e.line());
+            }
+        }
+        println!("sim blur {sigma} pooled: {}", total.line());
+    }
+}
+
+fn real(dirs: &[PathBuf]) -> Result<()> {
+    for dir in dirs {
+        let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
+            .with_context(|| format!("reading {}", dir.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+            .collect();
+        paths.sort();
+        let mut total = Errors::default();
+        for p in &paths {
+            let truth = load_rgb8(p)?;
+            let out = developed(&Mosaic::sample(&linear(&truth), BayerOrder::Rggb));
+            let e = Errors::of(&out, &truth, 4);
+            total.add(&e);
+            println!("real {}: {}", p.display(), e.line());
+        }
+        println!("real {} pooled: {}", dir.display(), total.line());
+    }
+    Ok(())
+}
+
+fn fused() {
+    for seed in [5u64, 17] {
+        for sigma in [0.0f32, 0.5] {
+            let s = render(&SimParams {
+                width: 256,
+                height: 192,
+                planes: 5,
+                seed,
+                linear_light: true,
+                ..SimParams::default()
+            });
+            let lin = |f: &Image<u8>| gaussian_blur_channels(&linear(f), sigma);
+            let frames: Vec<Image<f32>> = s.frames.iter().map(lin).collect();
+            let truth = encode(&lin(&s.truth));
+            let mut dev = Developer {
+                black_level: 0,
+                matrix: IDENTITY,
+                white_balance: Some([1.0; 3]),
+            };
+            let dev_frames: Vec<Image<u8>> = frames
+                .iter()
+                .map(|f| dev.develop(Mosaic::sample(f, BayerOrder::Rggb)))
+                .collect();
+            let mut frame_e = Errors::default();
+            for (d, f) in dev_frames.iter().zip(&frames) {
+                frame_e.add(&Errors::of(d, &encode(f), 4));
+            }
+            let params = FuseParams {
+                align: None,
+                ..FuseParams::default()
+            };
+            let rgb_frames: Vec<Image<u8>> = frames.iter().map(encode).collect();
+            let from_mosaics = fuse(dev_frames.clone(), &params, &NoProgress).expect("fuses");
+            let rgb = fuse(rgb_frames.clone(), &params, &NoProgress).expect("fuses");
+            // Where the gap comes from: each pixel taken whole from the frame a labelling chose,
+            // the developed frames by their own labels and by the RGB frames', the RGB frames by
+            // theirs.
+            let pick = |frames: &[Image<u8>], labels: &[u8]| {
+                Image::from_fn(truth.width, truth.height, 3, |x, y, c| {
+                    frames[labels[y * truth.width + x] as usize].at(x, y, c)
+                })
+            };
+            let picked = [
+                pick(&dev_frames, &from_mosaics.labels),
+                pick(&dev_frames, &rgb.labels),
+                pick(&rgb_frames, &rgb.labels),
+            ]
+            .map(|p| psnr(&p, &truth, 4));
+            println!(
+                "picked seed {seed} blur {sigma}: developed frames by their labels {:.2} dB, by \
+                 the RGB frames' {:.2} dB, RGB frames {:.2} dB",
+                picked[0], picked[1], picked[2]
+            );
+            let (m, r) = (
+                psnr(&from_mosaics.image, &truth, 4),
+                psnr(&rgb.image, &truth, 4),
+            );
+            println!(
+                "fused seed {seed} blur {sigma}: mosaics {m:.2} dB, RGB {r:.2} dB, {:.2} dB short; \
+                 frames' demosaic {}",
+                r - m,
+                frame_e.line()
+            );
+        }
+    }
+}
+
+fn edges() {
+    let edge = |slope: f32, width: f32| {
+        Image::from_fn(64, 64, 3, move |x, y, _| {
+            let d = x as f32 - 32.0 - slope * (y as f32 - 32.0);
+            (0.5 + d / width).clamp(0.0, 1.0) * 0.8 + 0.05
+        })
+    };
+    for width in [1.0f32, 3.0] {
+        for slope in [0.0f32, 0.2, 1.0] {
+            let out = developed(&Mosaic::sample(&edge(slope, width), BayerOrder::Rggb));
+            let fringe = out
+                .data
+                .chunks_exact(3)
+                .map(|p| p[0].abs_diff(p[1]).max(p[2].abs_diff(p[1])))
+                .max()
+                .unwrap_or(0);
+            let mut zipper = 0;
+            for y in 2..out.height - 3 {
+                for x in 0..out.width {
+                    for c in 0..3 {
+                        zipper = zipper.max(out.at(x, y, c).abs_diff(out.at(x, y + 1, c)));
+                    }
+                }
+            }
+            let z = if slope == 0.0 {
+                format!(", zipper {zipper}")
+            } else {
+                String::new()
+            };
+            println!("edge {width} px slope {slope}: false colour {fringe}{z}");
+        }
+    }
+}
+
+fn timing(runs: usize) {
+    let scene = render(&SimParams {
+        width: 1024,
+        height: 768,
+        planes: 2,
+        seed: 7,
+        noise_sigma: 0.0,
+        ..SimParams::default()
+    })
+    .truth;
+    // Tiled 2×2 to 2048×1536.
+    let lin = linear(&scene);
+    let big = Image::from_fn(2048, 1536, 3, |x, y, c| lin.at(x % 1024, y % 768, c));
+    let m = Mosaic::sample(&big, BayerOrder::Rggb);
+    // Wall time, and the process's CPU time: on a machine shared with other work the CPU time
+    // of the single-threaded run is the steadier figure.
+    let cpu = || {
+        let mut t = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: clock_gettime writes only the timespec it is given.
+        unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+        t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    };
+    let median = |f: &dyn Fn()| {
+        let t: Vec<(f64, f64)> = (0..runs)
+            .map(|_| {
+                let (t0, c0) = (Instant::now(), cpu());
+                f();
+                (t0.elapsed().as_secs_f64(), cpu() - c0)
+            })
+            .collect();
+        let mid = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        (
+            mid(t.iter().map(|p| p.0).collect()),
+            mid(t.iter().map(|p| p.1).collect()),
+        )
+    };
+    let (all, _) = median(&|| drop(demosaic(&m)));
+    let one_pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let (one, one_cpu) = median(&|| one_pool.install(|| drop(demosaic(&m))));
+    println!(
+        "time per 3 MP frame: {all:.3} s on {} threads, {one:.3} s on one ({one_cpu:.3} s CPU)",
+        rayon::current_num_threads()
+    );
+}
+
+fn main() -> Result<()> {
+    let mut real_dirs = Vec::new();
+    let (mut fuse_too, mut runs) = (true, 5usize);
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--real" => real_dirs.push(PathBuf::from(args.next().context("--real DIR")?)),
+            "--no-fuse" => fuse_too = false,
+            "--tune" => focusd::malloc::tune(),
+            "--runs" => runs = args.next().context("--runs N")?.parse()?,
+            _ => bail!("usage: demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N]"),
+        }
+    }
+    simulated();
+    real(&real_dirs)?;
+    if fuse_too {
+        fused();
+    }
+    edges();
+    timing(runs.max(1));
+    Ok(())
+}
