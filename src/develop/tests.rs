@@ -46,7 +46,7 @@ fn samples_become_linear_light_above_the_black_level() {
 }
 
 #[test]
-fn demosaic_beats_bilinear_by_2_db_and_malvar_by_1_db_on_simulated_scenes() {
+fn demosaic_beats_bilinear_by_6_db_and_malvar_by_2_5_db_on_simulated_scenes() {
     // The simulator's truths are sharper than a phone lens draws (12-15 % of their spectral
     // energy above 0.25 cycles/px, real frames at most 10.6 %), so also through a 0.5 px blur.
     for (i, truth) in truths().iter().enumerate() {
@@ -66,8 +66,9 @@ fn demosaic_beats_bilinear_by_2_db_and_malvar_by_1_db_on_simulated_scenes() {
                      Malvar-He-Cutler {mhc:.2} dB, bilinear {before:.2} dB (on encoded samples \
                      {same_domain:.2} dB)"
                 );
+                // Measured 6.8-8.1 dB above bilinear, 2.9-4.2 above Malvar-He-Cutler.
                 assert!(
-                    good >= before.max(same_domain) + 2.0 && good >= mhc + 1.0,
+                    good >= before.max(same_domain) + 6.0 && good >= mhc + 2.5,
                     "scene {i} blur {sigma} {order:?}: {good:.2} dB against bilinear's \
                      {before:.2} and {same_domain:.2} dB, Malvar-He-Cutler's {mhc:.2} dB"
                 );
@@ -121,10 +122,11 @@ fn grey_edges_get_little_false_colour_and_no_zipper() {
                  bilinear {fb}"
             );
             // At most half bilinear's everywhere; along edges near the sampling axes, which
-            // are most of a picture's, at most half Malvar-He-Cutler's too (measured 1-11
-            // against 7-26 in 8-bit units; on the 45° edges 30-53 against 24-43).
+            // are most of a picture's, at most half Malvar-He-Cutler's too (measured 0-11
+            // against 7-26 in 8-bit units); on the 45° edges no more than Malvar-He-Cutler's
+            // and a step (9-44 against 24-43).
             assert!(
-                fg * 2 <= fb && (slope == 1.0 || fg * 2 <= fm),
+                fg * 2 <= fb && (slope == 1.0 || fg * 2 <= fm) && fg <= fm + 2,
                 "width {width} slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
                  bilinear {fb}"
             );
