@@ -17,7 +17,7 @@
 
 use anyhow::{bail, Context, Result};
 use focusd::develop::demosaic::demosaic;
-use focusd::develop::{encode, srgb_decode, BayerOrder, Developer, Mosaic, IDENTITY};
+use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::imageio::load_rgb8;
 use focusd::sim::{render, SimParams};
 use focusd::stack::blur::gaussian_blur_channels;
@@ -28,18 +28,6 @@ use focusd::stack::params::FuseParams;
 use focusd::stack::NoProgress;
 use std::path::PathBuf;
 use std::time::Instant;
-
-fn linear(img: &Image<u8>) -> Image<f32> {
-    Image::from_vec(
-        img.width,
-        img.height,
-        img.channels,
-        img.data
-            .iter()
-            .map(|&v| srgb_decode(f32::from(v) / 255.0))
-            .collect(),
-    )
-}
 
 fn db(se: f64, n: usize) -> f64 {
     if se == 0.0 {
@@ -123,7 +111,7 @@ fn simulated() {
                 ..SimParams::default()
             })
             .truth;
-            let lin = gaussian_blur_channels(&linear(&truth), sigma);
+            let lin = gaussian_blur_channels(&decode(&truth), sigma);
             let truth = encode(&lin);
             for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
                 let out = developed(&Mosaic::sample(&lin, order));
@@ -147,7 +135,7 @@ fn real(dirs: &[PathBuf]) -> Result<()> {
         let mut total = Errors::default();
         for p in &paths {
             let truth = load_rgb8(p)?;
-            let out = developed(&Mosaic::sample(&linear(&truth), BayerOrder::Rggb));
+            let out = developed(&Mosaic::sample(&decode(&truth), BayerOrder::Rggb));
             let e = Errors::of(&out, &truth, 4);
             total.add(&e);
             println!("real {}: {}", p.display(), e.line());
@@ -168,7 +156,7 @@ fn fused() {
                 linear_light: true,
                 ..SimParams::default()
             });
-            let lin = |f: &Image<u8>| gaussian_blur_channels(&linear(f), sigma);
+            let lin = |f: &Image<u8>| gaussian_blur_channels(&decode(f), sigma);
             let frames: Vec<Image<f32>> = s.frames.iter().map(lin).collect();
             let truth = encode(&lin(&s.truth));
             let mut dev = Developer {
@@ -269,7 +257,7 @@ fn timing(runs: usize) {
     })
     .truth;
     // Tiled 2×2 to 2048×1536.
-    let lin = linear(&scene);
+    let lin = decode(&scene);
     let big = Image::from_fn(2048, 1536, 3, |x, y, c| lin.at(x % 1024, y % 768, c));
     let m = Mosaic::sample(&big, BayerOrder::Rggb);
     // Wall time, and the process's CPU time: on a machine shared with other work the CPU time

@@ -16,7 +16,7 @@
 //! (33-34 dB sharp, 36-38 dB blurred, as in the unit tests). Within 1 dB would need the demosaic
 //! at about 36 dB on sharp frames. The test guards what is reached.
 
-use focusd::develop::{encode, srgb_decode, BayerOrder, Developer, Mosaic, IDENTITY};
+use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::sim::{render, SimParams};
 use focusd::stack::blur::gaussian_blur_channels;
 use focusd::stack::fuse::fuse;
@@ -42,18 +42,7 @@ fn stack(seed: u64, sigma: f32) -> Stack {
         linear_light: true,
         ..SimParams::default()
     });
-    let linear = |f: &Image<u8>| {
-        let lin = Image::from_vec(
-            f.width,
-            f.height,
-            3,
-            f.data
-                .iter()
-                .map(|&v| srgb_decode(f32::from(v) / 255.0))
-                .collect(),
-        );
-        gaussian_blur_channels(&lin, sigma)
-    };
+    let linear = |f: &Image<u8>| gaussian_blur_channels(&decode(f), sigma);
     let frames: Vec<Image<f32>> = s.frames.iter().map(linear).collect();
     Stack {
         mosaics: frames

@@ -128,6 +128,17 @@ pub fn grey_world(frames: &[&Mosaic]) -> [f32; 3] {
 
 pub use crate::stack::srgb::{decode as srgb_decode, encode as srgb_encode};
 
+/// 8-bit sRGB to linear RGB: the inverse of [`encode`], for truths and frames made as pictures
+/// that a test or measurement mosaics as a sensor would see them.
+pub fn decode(img: &Image<u8>) -> Image<f32> {
+    let data = img
+        .data
+        .iter()
+        .map(|&v| srgb_decode(f32::from(v) / 255.0))
+        .collect();
+    Image::from_vec(img.width, img.height, img.channels, data)
+}
+
 /// Linear RGB to 8-bit sRGB.
 pub fn encode(rgb: &Image<f32>) -> Image<u8> {
     // A table over 12 bits of linear light: the curve's libm `powf` per sample would dominate.

@@ -5,18 +5,6 @@ use crate::sim::{self, SimParams};
 use crate::stack::blur::gaussian_blur_channels;
 use crate::stack::metrics::psnr;
 
-fn linear(img: &Image<u8>) -> Image<f32> {
-    Image::from_vec(
-        img.width,
-        img.height,
-        img.channels,
-        img.data
-            .iter()
-            .map(|&v| srgb_decode(f32::from(v) / 255.0))
-            .collect(),
-    )
-}
-
 /// All-in-focus truths from the simulator: textured surfaces, objects with sharp occluding
 /// edges and a ruler, different for each seed.
 fn truths() -> Vec<Image<u8>> {
@@ -51,7 +39,7 @@ fn demosaic_beats_bilinear_by_6_db_and_malvar_by_2_5_db_on_simulated_scenes() {
     // energy above 0.25 cycles/px, real frames at most 10.6 %), so also through a 0.5 px blur.
     for (i, truth) in truths().iter().enumerate() {
         for sigma in [0.0, 0.5] {
-            let lin = gaussian_blur_channels(&linear(truth), sigma);
+            let lin = gaussian_blur_channels(&decode(truth), sigma);
             let truth = encode(&lin);
             for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
                 let m = Mosaic::sample(&lin, order);
