@@ -245,7 +245,8 @@ fn block<const LANES: usize>(src: &[f32], at: usize) -> &[f32; LANES] {
 }
 
 /// Averages `factor`×`factor` blocks of every channel (partial blocks at the right and bottom
-/// edges included), straight from the interleaved samples.
+/// edges included), straight from the interleaved samples. An output row's sums are formed
+/// together, a source row at a time, each channel's sum over a block's row in one pass.
 pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
     if factor <= 1 {
         return src.clone();
@@ -258,22 +259,27 @@ pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
         .for_each(|(cy, out)| {
             let y0 = cy * factor;
             let y1 = (y0 + factor).min(h);
-            let (mut sum, mut row) = (vec![0.0f32; n], vec![0.0f32; n]);
-            for (cx, px) in out.chunks_exact_mut(n).enumerate() {
-                let x0 = cx * factor;
-                let x1 = (x0 + factor).min(w);
-                sum.fill(0.0);
-                // Row by row, as the sums of f32 planes have always been formed.
-                for y in y0..y1 {
-                    row.fill(0.0);
-                    for s in src.data[(y * w + x0) * n..(y * w + x1) * n].chunks_exact(n) {
-                        row.iter_mut().zip(s).for_each(|(a, v)| *a += v.to_f32());
+            let mut sum = vec![0.0f32; cw * n];
+            // Row by row, as the sums of f32 planes have always been formed.
+            for y in y0..y1 {
+                let line = &src.data[y * w * n..(y + 1) * w * n];
+                for (cx, acc) in sum.chunks_exact_mut(n).enumerate() {
+                    let block = &line[cx * factor * n..((cx + 1) * factor).min(w) * n];
+                    for (c, a) in acc.iter_mut().enumerate() {
+                        let row: f32 = block
+                            .iter()
+                            .skip(c)
+                            .step_by(n)
+                            .fold(0.0, |r, v| r + v.to_f32());
+                        *a += row;
                     }
-                    sum.iter_mut().zip(&row).for_each(|(a, r)| *a += r);
                 }
-                let count = ((y1 - y0) * (x1 - x0)) as f32;
+            }
+            for (cx, (px, s)) in out.chunks_exact_mut(n).zip(sum.chunks_exact(n)).enumerate() {
+                let x0 = cx * factor;
+                let count = ((y1 - y0) * ((x0 + factor).min(w) - x0)) as f32;
                 px.iter_mut()
-                    .zip(&sum)
+                    .zip(s)
                     .for_each(|(o, s)| *o = T::from_f32(s / count));
             }
         });

@@ -176,22 +176,51 @@ impl<T: Sample> Image<T> {
     }
 }
 
+/// Where a bilinear sample reads along one axis: the two neighbouring pixels (clamped to the
+/// edge) and the weight of the second. A regular grid of samples, such as a reduced map read at
+/// every full-resolution pixel, computes each row's and each column's taps once instead of at
+/// every sample of every plane.
+#[derive(Clone, Copy, Debug)]
+pub struct Tap {
+    lo: usize,
+    hi: usize,
+    frac: f32,
+}
+
+impl Tap {
+    /// The taps of coordinate `v` (pixel-centre) on an axis of `n` pixels.
+    #[inline]
+    pub fn new(v: f32, n: usize) -> Tap {
+        let n = n as isize;
+        let f = v.floor();
+        Tap {
+            lo: (f as isize).clamp(0, n - 1) as usize,
+            hi: (f as isize + 1).clamp(0, n - 1) as usize,
+            frac: v - f,
+        }
+    }
+
+    /// The pixel at or before the coordinate, clamped to the axis.
+    #[inline]
+    pub fn cell(self) -> usize {
+        self.lo
+    }
+}
+
 impl Plane {
     /// Bilinear sample with edge clamping; (x, y) in pixel-centre coordinates.
     #[inline]
     pub fn sample_bilinear(&self, x: f32, y: f32) -> f32 {
-        let (w, h) = (self.width as isize, self.height as isize);
-        let x0f = x.floor();
-        let y0f = y.floor();
-        let (fx, fy) = (x - x0f, y - y0f);
-        let x0 = (x0f as isize).clamp(0, w - 1) as usize;
-        let y0 = (y0f as isize).clamp(0, h - 1) as usize;
-        let x1 = (x0f as isize + 1).clamp(0, w - 1) as usize;
-        let y1 = (y0f as isize + 1).clamp(0, h - 1) as usize;
-        let r0 = y0 * self.width;
-        let r1 = y1 * self.width;
-        let top = self.data[r0 + x0] * (1.0 - fx) + self.data[r0 + x1] * fx;
-        let bot = self.data[r1 + x0] * (1.0 - fx) + self.data[r1 + x1] * fx;
+        self.sample_taps(Tap::new(x, self.width), Tap::new(y, self.height))
+    }
+
+    /// Bilinear sample at the taps of a column and a row (made for this plane's size).
+    #[inline]
+    pub fn sample_taps(&self, tx: Tap, ty: Tap) -> f32 {
+        let (r0, r1) = (ty.lo * self.width, ty.hi * self.width);
+        let (fx, fy) = (tx.frac, ty.frac);
+        let top = self.data[r0 + tx.lo] * (1.0 - fx) + self.data[r0 + tx.hi] * fx;
+        let bot = self.data[r1 + tx.lo] * (1.0 - fx) + self.data[r1 + tx.hi] * fx;
         top * (1.0 - fy) + bot * fy
     }
 }

@@ -27,7 +27,7 @@
 
 use super::align::Coverage;
 use super::blur::{downsample_area, gaussian_blur};
-use super::image::{Image, Plane, Sample};
+use super::image::{Image, Plane, Sample, Tap};
 use super::order::Order;
 use super::srgb;
 use rayon::prelude::*;
@@ -397,14 +397,14 @@ fn refine<T: Sample>(
             }))
         })
         .collect();
-    let scale = 1.0 / factor as f32;
+    let cols = taps(w, factor, masks[0].width);
     let mut objects = depth.to_vec();
     let relabelled = depth
         .par_chunks_mut(w)
         .zip(objects.par_chunks_mut(w))
         .enumerate()
         .map(|(y, (drow, orow))| {
-            let ry = (y as f32 + 0.5) * scale - 0.5;
+            let ty = tap(y, factor, masks[0].height);
             let mut moved = 0;
             for x in 0..w {
                 let i = y * w + x;
@@ -417,13 +417,12 @@ fn refine<T: Sample>(
                     if !coverage[frame_of(k)].covers(x, y) {
                         continue;
                     }
-                    let rx = (x as f32 + 0.5) * scale - 0.5;
                     let px = &frames[frame_of(k)].data[i * ch..][..ch];
                     let (mut din, mut dout) = (0.0, 0.0);
                     for (c, v) in px.iter().enumerate() {
                         let v = v.to_f32() / T::MAX;
-                        din += (v - inside[c].sample_bilinear(rx, ry)).powi(2);
-                        dout += (v - behind[c].sample_bilinear(rx, ry)).powi(2);
+                        din += (v - inside[c].sample_taps(cols[x], ty)).powi(2);
+                        dout += (v - behind[c].sample_taps(cols[x], ty)).powi(2);
                     }
                     if !(din.is_finite() && dout.is_finite()) {
                         continue;
@@ -699,7 +698,6 @@ impl Spill {
     ) -> usize {
         let (w, ch) = (frame.width, frame.channels);
         let (rw, rh) = (self.cover.width, self.cover.height);
-        let scale = 1.0 / self.factor as f32;
         // Reduced pixels whose 2×2 block (what a bilinear sample there reads) holds any spill:
         // most of a frame holds none and is passed over without sampling.
         let spilt =
@@ -710,21 +708,20 @@ impl Spill {
                 spilt(x, y) || spilt(x + 1, y) || spilt(x, y + 1) || spilt(x + 1, y + 1)
             })
             .collect();
-        let cell = |v: f32, n: usize| (v.floor().max(0.0) as usize).min(n - 1);
+        let cols = taps(w, self.factor, rw);
         frame
             .data
             .par_chunks_mut(w * ch)
             .enumerate()
             .map(|(y, row)| {
-                let ry = (y as f32 + 0.5) * scale - 0.5;
-                let active = &active[cell(ry, rh) * rw..][..rw];
+                let ty = tap(y, self.factor, rh);
+                let active = &active[ty.cell() * rw..][..rw];
                 let mut changed = 0;
-                for (x, px) in row.chunks_exact_mut(ch).enumerate() {
-                    let rx = (x as f32 + 0.5) * scale - 0.5;
-                    if !active[cell(rx, rw)] {
+                for ((x, px), &tx) in row.chunks_exact_mut(ch).enumerate().zip(&cols) {
+                    if !active[tx.cell()] {
                         continue;
                     }
-                    let a = self.cover.sample_bilinear(rx, ry);
+                    let a = self.cover.sample_taps(tx, ty);
                     if a < TRACE || guarded(y * w + x) {
                         continue;
                     }
@@ -734,7 +731,7 @@ impl Spill {
                     }
                     for (c, v) in px.iter_mut().enumerate() {
                         let f = light.mixed(v.to_f32() / T::MAX);
-                        let s = self.colour[c].sample_bilinear(rx, ry);
+                        let s = self.colour[c].sample_taps(tx, ty);
                         let b = ((f - s) / (1.0 - a)).clamp(0.0, 1.0);
                         let mixed = keep * b + (1.0 - keep) * f;
                         *v = T::from_f32(light.stored(mixed) * T::MAX);
@@ -745,6 +742,18 @@ impl Spill {
             })
             .sum()
     }
+}
+
+/// The bilinear taps of full-resolution pixel `i`'s centre on an axis reduced by `factor` to
+/// `reduced` pixels.
+fn tap(i: usize, factor: usize, reduced: usize) -> Tap {
+    Tap::new((i as f32 + 0.5) * (1.0 / factor as f32) - 0.5, reduced)
+}
+
+/// [`tap`] of each of `full` pixels: a frame's columns read the same taps on every row and in
+/// every plane.
+fn taps(full: usize, factor: usize, reduced: usize) -> Vec<Tap> {
+    (0..full).map(|x| tap(x, factor, reduced)).collect()
 }
 
 fn add(acc: &mut Plane, b: &Plane) {
