@@ -122,7 +122,14 @@ fn captures_from_zbus_trigger_and_busctl_are_fused_close_to_the_truth() {
             .filter(|(j, _)| *j == job)
             .map(|(_, s)| s.clone())
             .collect();
-        for s in ["waiting-still", "sweeping", "register", "labels", "compose"] {
+        for s in [
+            "waiting-still",
+            "sweeping",
+            "register",
+            "labels",
+            "spill",
+            "compose",
+        ] {
             assert!(stages.iter().any(|x| x == s), "{s} missing from {stages:?}");
         }
 

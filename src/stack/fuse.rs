@@ -172,10 +172,17 @@ pub fn fuse<T: Sample>(
             let order = focus_order(&frames, &labels, coverage);
             lap(Stage::Labels, &mut timings);
             go_on(progress)?;
-            // Counted in the compose: it prepares the frames for it.
-            spill = params
-                .spill
-                .then(|| unmix(&mut frames, &mut labels, coverage, order.order));
+            if params.spill {
+                spill = Some(unmix(
+                    &mut frames,
+                    &mut labels,
+                    coverage,
+                    order.order,
+                    progress,
+                ));
+                lap(Stage::Spill, &mut timings);
+                go_on(progress)?;
+            }
             let (image, _) = compose(
                 &frames,
                 Select::Labels(&labels, params.graphcut.blend_levels),

@@ -28,6 +28,8 @@ pub enum Stage {
     /// The focus measure, the first part of the labelling.
     Focus,
     Labels,
+    /// Taking nearer objects' defocused spill out of the frames focused farther.
+    Spill,
     Compose,
     /// The pyramid method's whole fusion, timed as one stage (its progress is `Compose`'s).
     Pyramid,
@@ -40,6 +42,7 @@ impl Stage {
             Stage::Warp => "warp",
             Stage::Focus => "focus",
             Stage::Labels => "labels",
+            Stage::Spill => "spill",
             Stage::Compose => "compose",
             Stage::Pyramid => "pyramid",
         }

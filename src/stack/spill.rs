@@ -30,6 +30,7 @@ use super::blur::{downsample_area, gaussian_blur};
 use super::image::{Image, Plane, Sample, Tap};
 use super::order::Order;
 use super::srgb;
+use super::{Progress, Stage};
 use rayon::prelude::*;
 
 /// Pixels of the reduced working resolution, at most: enough to fit blurs of 1 px and more.
@@ -136,8 +137,8 @@ impl std::fmt::Display for Unmixed {
 }
 
 /// Bytes [`unmix`] holds besides the frames, for the memory plan: the reduced frames in one
-/// light and their luma in both, the region masks (before and after refinement) and their interiors, one far frame's
-/// spill, and a few full-size maps of one byte a pixel.
+/// light and their luma in both, the region masks (before and after refinement) and their
+/// interiors, one far frame's spill, and a few full-size maps of one byte a pixel.
 pub fn working_bytes(frames: usize, width: usize, height: usize, channels: usize) -> usize {
     let f = reduction(width, height);
     let reduced = width.div_ceil(f) * height.div_ceil(f);
@@ -152,14 +153,18 @@ fn reduction(width: usize, height: usize) -> usize {
 }
 
 /// Un-mixes every frame in place, given the label map and the stack's focus order (an
-/// `Unknown` order is taken as nearest first). Where the near side of a step is mislabelled (a farther frame
-/// taken where the near object is, which shows the background through the object's edge), the
-/// labels are moved to the near object's frame.
+/// `Unknown` order is taken as nearest first). Where the near side of a step is mislabelled (a
+/// farther frame taken where the near object is, which shows the background through the
+/// object's edge), the labels are moved to the near object's frame. Reports its own stage,
+/// [`Stage::Spill`], a step per frame reduced, fitted (in each light) and un-mixed: its work
+/// grows with the frames and their depth steps, and a watchdog waiting on progress must see it
+/// move.
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],
     coverage: &[Coverage],
     order: Order,
+    progress: &dyn Progress,
 ) -> Unmixed {
     let n = frames.len();
     let mut out = Unmixed {
@@ -174,12 +179,18 @@ pub fn unmix<T: Sample>(
     }
     let (w, h) = (frames[0].width, frames[0].height);
     debug_assert_eq!(labels.len(), w * h);
+    // Reduce, refine, fit in two lights, un-mix: see `fit` and the loop below for the steps.
+    progress.stage(Stage::Spill, 4 * n + 1);
     // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
     let frame_of = |d: usize| order.frame_at(d, n);
     let factor = reduction(w, h);
     let reduced: Vec<Vec<Plane>> = (0..n)
         .into_par_iter()
-        .map(|d| downsample_area(&frames[frame_of(d)], factor).to_planes())
+        .map(|d| {
+            let planes = downsample_area(&frames[frame_of(d)], factor).to_planes();
+            progress.advance(1);
+            planes
+        })
         .collect();
     let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
     let masks = region_masks(&depth, w, h, n, factor);
@@ -187,6 +198,7 @@ pub fn unmix<T: Sample>(
         frames, coverage, &frame_of, &mut depth, &reduced, &masks, factor,
     );
     out.relabelled = refined.relabelled;
+    progress.advance(1);
     for (l, &d) in labels.iter_mut().zip(&depth) {
         *l = frame_of(d as usize) as u8;
     }
@@ -195,12 +207,13 @@ pub fn unmix<T: Sample>(
     // that is the light chosen, so one light's reduced frames are held, never both.
     let (display, linear): (Vec<Plane>, Vec<Plane>) = reduced
         .par_iter()
-        .map(|planes| (luma(planes), luma(&decode(planes))))
+        .map(|planes| (luma(planes, Light::Display), luma(planes, Light::Linear)))
         .unzip();
     let (light, pairs) = fit(
         [(Light::Linear, linear), (Light::Display, display)],
         &masks,
         factor,
+        progress,
     );
     let Some(light) = light else {
         return out;
@@ -209,7 +222,7 @@ pub fn unmix<T: Sample>(
     if light == Light::Linear {
         mixed.par_iter_mut().for_each(|planes| {
             for v in planes.iter_mut().flat_map(|p| p.data.iter_mut()) {
-                *v = srgb::decode(*v);
+                *v = light.mixed(*v);
             }
         });
     }
@@ -217,12 +230,12 @@ pub fn unmix<T: Sample>(
     let nearest = window_min(&refined.objects, w, h, GUARD);
     for l in 0..n {
         let mine: Vec<&Pair> = pairs.iter().filter(|p| p.far as usize == l).collect();
-        if mine.is_empty() {
-            continue;
+        if !mine.is_empty() {
+            let spill = Spill::of(&mixed, &masks, &mine, factor);
+            let is_guarded = |p: usize| nearest[p] as usize + 2 <= l;
+            out.changed[frame_of(l)] = spill.apply(&mut frames[frame_of(l)], &is_guarded, light);
         }
-        let spill = Spill::of(&mixed, &masks, &mine, factor);
-        let is_guarded = |p: usize| nearest[p] as usize + 2 <= l;
-        out.changed[frame_of(l)] = spill.apply(&mut frames[frame_of(l)], &is_guarded, light);
+        progress.advance(1);
     }
     out.pairs = pairs
         .into_iter()
@@ -233,17 +246,6 @@ pub fn unmix<T: Sample>(
         })
         .collect();
     out
-}
-
-/// Reduced colour planes decoded from sRGB to linear light.
-fn decode(planes: &[Plane]) -> Vec<Plane> {
-    planes
-        .iter()
-        .map(|p| Plane {
-            data: p.data.iter().map(|&v| srgb::decode(v)).collect(),
-            ..*p
-        })
-        .collect()
 }
 
 /// Per depth rank, the share of each reduced pixel it covers in `depth`: one pass counting
@@ -485,12 +487,14 @@ fn inside_distance(mask: &Plane) -> Vec<u32> {
     d
 }
 
-fn luma(planes: &[Plane]) -> Plane {
+/// The luma of reduced sRGB-encoded planes, in `light`.
+fn luma(planes: &[Plane], light: Light) -> Plane {
     let px = planes[0].pixels();
+    let v = |c: usize, i: usize| light.mixed(planes[c].data[i]);
     let data = (0..px)
         .map(|i| match planes.len() {
-            1 => planes[0].data[i],
-            _ => 0.299 * planes[0].data[i] + 0.587 * planes[1].data[i] + 0.114 * planes[2].data[i],
+            1 => v(0, i),
+            _ => 0.299 * v(0, i) + 0.587 * v(1, i) + 0.114 * v(2, i),
         })
         .collect();
     Plane::from_vec(planes[0].width, planes[0].height, 1, data)
@@ -506,6 +510,7 @@ fn fit(
     lights: [(Light, Vec<Plane>); 2],
     masks: &[Plane],
     factor: usize,
+    progress: &dyn Progress,
 ) -> (Option<Light>, Vec<Pair>) {
     let n = masks.len();
     let interiors: Vec<Vec<u32>> = masks.par_iter().map(inside_distance).collect();
@@ -515,7 +520,9 @@ fn fit(
             .into_par_iter()
             .flat_map_iter(|k| {
                 let far: Vec<usize> = (k + 2..n).collect();
-                fit_near(k, &far, &lumas, &interiors[k], factor)
+                let fits = fit_near(k, &far, &lumas, &interiors[k], factor);
+                progress.advance(1);
+                fits
             })
             .collect();
         if fits.is_empty() {
@@ -771,6 +778,9 @@ fn add(acc: &mut Plane, b: &Plane) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::stack::NoProgress;
+    use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+    use std::sync::Mutex;
 
     const SIZE: usize = 160;
     const CENTRE: f32 = 80.0;
@@ -875,7 +885,13 @@ mod tests {
             let (mut frames, background) = scene(light);
             let before = frames.clone();
             let mut l = labels();
-            let out = unmix(&mut frames, &mut l, &full(3), Order::NearestFirst);
+            let out = unmix(
+                &mut frames,
+                &mut l,
+                &full(3),
+                Order::NearestFirst,
+                &NoProgress,
+            );
             assert_eq!(out.light, Some(light));
             let pair = out.pairs.iter().find(|p| (p.near, p.far) == (0, 2));
             let sigma = pair.expect("the disc's blur in frame 2 is fitted").sigma;
@@ -904,6 +920,41 @@ mod tests {
         }
     }
 
+    /// Records the stages announced and the steps advanced.
+    #[derive(Default)]
+    struct Steps {
+        stages: Mutex<Vec<(Stage, usize)>>,
+        done: AtomicUsize,
+    }
+
+    impl Progress for Steps {
+        fn stage(&self, stage: Stage, total: usize) {
+            self.stages.lock().unwrap().push((stage, total));
+        }
+        fn advance(&self, steps: usize) {
+            self.done.fetch_add(steps, Relaxed);
+        }
+    }
+
+    /// The daemon's watchdog fails a job whose progress stands still: the spill removal
+    /// announces its own stage and advances through every step it announced.
+    #[test]
+    fn the_spill_removal_reports_its_progress_to_the_end() {
+        let (mut frames, _) = scene(Light::Linear);
+        let steps = Steps::default();
+        let out = unmix(
+            &mut frames,
+            &mut labels(),
+            &full(3),
+            Order::NearestFirst,
+            &steps,
+        );
+        assert!(!out.pairs.is_empty());
+        let stages = steps.stages.into_inner().unwrap();
+        assert_eq!(stages, [(Stage::Spill, 13)]);
+        assert_eq!(steps.done.into_inner(), 13);
+    }
+
     /// A disc 24 px in radius blurred by 7 px behind: deeper than 3σ it has no interior to fit
     /// on, deeper than 1.5σ enough. Its spill is still fitted and un-mixed.
     #[test]
@@ -913,7 +964,13 @@ mod tests {
         let mut labels: Vec<u8> = (0..SIZE * SIZE)
             .map(|i| u8::from(distance(i) + RADIUS > radius) * 2)
             .collect();
-        let out = unmix(&mut frames, &mut labels, &full(3), Order::NearestFirst);
+        let out = unmix(
+            &mut frames,
+            &mut labels,
+            &full(3),
+            Order::NearestFirst,
+            &NoProgress,
+        );
         let fitted: Vec<(u8, u8, f32)> =
             out.pairs.iter().map(|p| (p.near, p.far, p.sigma)).collect();
         assert!(
@@ -927,10 +984,22 @@ mod tests {
     fn a_stack_given_farthest_first_is_un_mixed_the_same() {
         let (frames, _) = scene(Light::Linear);
         let (mut forward, mut fl) = (frames.clone(), labels());
-        unmix(&mut forward, &mut fl, &full(3), Order::NearestFirst);
+        unmix(
+            &mut forward,
+            &mut fl,
+            &full(3),
+            Order::NearestFirst,
+            &NoProgress,
+        );
         let mut reversed: Vec<Image<u8>> = frames.into_iter().rev().collect();
         let mut rl: Vec<u8> = labels().iter().map(|&l| 2 - l).collect();
-        let out = unmix(&mut reversed, &mut rl, &full(3), Order::FarthestFirst);
+        let out = unmix(
+            &mut reversed,
+            &mut rl,
+            &full(3),
+            Order::FarthestFirst,
+            &NoProgress,
+        );
         assert_eq!(reversed[0], forward[2]);
         assert!(rl.iter().zip(&fl).all(|(&r, &f)| r == 2 - f));
         assert!(out.pairs.iter().all(|p| (p.near, p.far) == (2, 0)));
@@ -949,7 +1018,7 @@ mod tests {
         ] {
             let (before, labels_before) = (f.clone(), l.clone());
             let cover = full(f.len());
-            let out = unmix(&mut f, &mut l, &cover, Order::NearestFirst);
+            let out = unmix(&mut f, &mut l, &cover, Order::NearestFirst, &NoProgress);
             assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
             assert_eq!((f, l), (before, labels_before));
         }
