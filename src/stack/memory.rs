@@ -87,8 +87,13 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     let budget = p.memory;
     let room = budget.saturating_sub(RUNTIME);
     // Each frame being prepared: its luma (4 bytes a pixel), its reduced levels and keypoint
-    // scale space (measured: 9.3 bytes a pixel in all at 3 MP).
-    let register = |k: usize| frames + k * px * 10;
+    // scale space (measured: 9.3 bytes a pixel in all at 3 MP). Then, refining, every frame's
+    // levels from the finest the refinement visits (at most `refine_pixels`, half size at
+    // most) up, and a stack of eight blurs of that level for the reference and each frame
+    // refined at once.
+    let fine = p.align.as_ref().map_or(0, |a| a.refine_pixels.min(px / 4));
+    let refine = |k: usize| s.frames * fine * 16 / 3 + (k + 1) * 8 * 4 * fine;
+    let register = |k: usize| frames + (k * px * 10).max(refine(k));
     let warp = frames + 2 * frame + 4 * px;
     // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps, and
     // the luma of the frame being measured; in bands, the amplitudes of a band's rows and, while

@@ -44,14 +44,14 @@ pub struct RegisterParams {
     pub detect_pixels: usize,
     /// The dense refinement stops at the largest level with at most this many pixels, and at
     /// half size at the finest (full size was worse: the defocus equalisation's blurs no longer
-    /// span a stack's defocus there). Finer is more precise: on 1600×1200 layered linear-light
-    /// stacks (weighted to where each frame is sharp, at 0.1) the fused PSNR is 28.9 / 31.6 /
-    /// 32.5 dB on the tripod stack at level 3 / 2 / 1, 25.6 / 26.6 / 27.0 with 3 px of parallax.
-    /// Level 1 (480k pixels) cost 0.1 s a frame more than level 2 on two cores and held 110 MB
-    /// more (its blur stacks), beyond what the memory plan gives registration; 200k keeps both
-    /// in bounds. Before, at 100k (level 3 unweighted), the affines were 0.37 px off on the
-    /// tripod stack: sub-pixel misregistration was most of what kept the output from the truth
-    /// away from depth steps.
+    /// span a stack's defocus there). Finer is more precise: sub-pixel misregistration is most
+    /// of what keeps the output from the truth away from depth steps (the tripod stack's
+    /// affines were 0.1–0.7 px off at 200k, level 2 of 1600×1200). With the defocus pairing
+    /// judged a level coarser and every fourth pixel stepped on, 480k (level 1 there) gives the
+    /// 1600×1200 layered stacks (tripod / 3 px / 6 px parallax) 32.14 → 33.18 / 26.30 → 26.76 /
+    /// 26.32 → 26.60 dB and 10 × 1.2 MP smooth / noisy 23.21 → 24.16 / 26.49 → 26.64 for
+    /// 0.02–0.05 s more CPU a frame; 800k (level 1 of a 3 MP frame) took 10 × 3.1 MP only
+    /// 30.28 → 30.30 dB, for 20 % more CPU.
     pub refine_pixels: usize,
     /// Pyramid levels the dense refinement visits, coarse to fine; 0 keeps the keypoint affine.
     pub refine_levels: usize,
@@ -93,7 +93,7 @@ impl Default for RegisterParams {
     fn default() -> Self {
         Self {
             detect_pixels: 400_000,
-            refine_pixels: 200_000,
+            refine_pixels: 480_000,
             refine_levels: 4,
             refine_iterations: 10,
             local: true,

@@ -4,9 +4,10 @@
 //! fit uses every textured pixel. It is inverse compositional (the reference is the template, so
 //! its gradients are computed once and shared by all frames) with a gain and an offset (frames
 //! differ in exposure), coarse to fine. On the finest level the two images are equalised in
-//! defocus ([`super::equalise`]) and compared only so, chiefly where the frame is the sharper
-//! one ([`BLURRIER`]); a Huber weight limits the pull of whatever still disagrees (occlusion
-//! edges, parallax of near objects).
+//! defocus ([`super::equalise`], the pairing judged on the level above) and compared only so,
+//! chiefly where the frame is the sharper one ([`BLURRIER`]), on every other pixel
+//! ([`STRIDE`]); a Huber weight limits the pull of whatever still disagrees (occlusion edges,
+//! parallax of near objects).
 
 use super::equalise::{self, Stack};
 use super::levels::{from_level, to_level, Levels};
@@ -27,6 +28,11 @@ const N: usize = 8;
 const BLURRIER: f32 = 0.2;
 /// Huber threshold in robust standard deviations of the residual.
 const HUBER: f32 = 1.5;
+/// The finest level's Gauss–Newton steps sample every `STRIDE`-th pixel of every `STRIDE`-th
+/// row: its gradients keep that level's precision at a quarter of the cost. On the 1600×1200
+/// layered stacks (tripod / 3 px / 6 px parallax, fine level 1) every pixel gave 32.72 / 26.68
+/// / 26.62 dB, every fourth 33.18 / 26.76 / 26.60.
+const STRIDE: usize = 2;
 
 /// A template image with its gradients (central differences, zero on the border).
 pub(super) struct View {
@@ -87,6 +93,9 @@ pub struct Template {
     pub(super) levels: Vec<View>,
     pub(super) first: usize,
     pub(super) stack: Stack,
+    /// The level above the finest, blurred by each equalisation sigma: where the defocus
+    /// pairing is judged (`None` when the pyramid has no level above).
+    pub(super) coarse: Option<Stack>,
 }
 
 impl Template {
@@ -95,10 +104,12 @@ impl Template {
             .map(|k| View::new(reference.get(k)))
             .collect();
         let stack = Stack::new(reference.get(finest));
+        let coarse = (reference.last() > finest).then(|| Stack::new(reference.get(finest + 1)));
         Template {
             levels,
             first: finest,
             stack,
+            coarse,
         }
     }
 }
@@ -134,15 +145,28 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
         fit.w = to_level(&fit.w, k);
         if i > 0 {
             let img = std::slice::from_ref(frame.get(k));
-            iterate(view, img, None, &mut fit, iterations);
+            iterate(view, img, None, &mut fit, iterations, 1);
         } else {
             // Only equalised: the coarser levels' fit is close enough to judge defocus on, and a
             // plain pass here, or a second round, cost 35 % more time for 0.01 px less error
             // (1600×1200 layered stacks, linear light).
             let stack = Stack::new(frame.get(k));
-            let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0]);
-            let warped = warp_stack(&stack, &cs, fit.gain, fit.offset);
-            let pick = equalise::choose(&tpl.stack, &warped);
+            let pick = match &tpl.coarse {
+                Some(coarse) => {
+                    let up = Stack::new(frame.get(k + 1));
+                    let t = &coarse.layers[0];
+                    let w1 = to_level(&from_level(&fit.w, k), k + 1);
+                    let cs = Coords::new(&w1, t.width, t.height, &up.layers[0]);
+                    let warped = warp_stack(&up, &cs, fit.gain, fit.offset);
+                    let p1 = equalise::choose(coarse, &warped);
+                    equalise::finer(&p1, t.width, t.height, view.width, view.height)
+                }
+                None => {
+                    let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0]);
+                    let warped = warp_stack(&stack, &cs, fit.gain, fit.offset);
+                    equalise::choose(&tpl.stack, &warped)
+                }
+            };
             let eq = View::select(&tpl.stack.layers, &pick);
             let frame_layer: Vec<u8> = pick.iter().map(|p| p.1).collect();
             let weight: Vec<f32> = pick
@@ -155,6 +179,7 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
                 Some((&frame_layer, &weight)),
                 &mut fit,
                 iterations,
+                STRIDE,
             );
         }
         fit.w = from_level(&fit.w, k);
@@ -172,10 +197,12 @@ fn iterate(
     layer: Option<(&[u8], &[f32])>,
     fit: &mut Fit,
     iterations: usize,
+    stride: usize,
 ) {
     let mut scale = None;
     for _ in 0..iterations {
-        let Some((dw, dgain, doff)) = gauss_newton(view, frame, layer, fit, &mut scale) else {
+        let Some((dw, dgain, doff)) = gauss_newton(view, frame, layer, fit, &mut scale, stride)
+        else {
             break;
         };
         let Some(inv) = dw.inverse() else { break };
@@ -204,11 +231,26 @@ pub(super) struct Coords {
 
 impl Coords {
     fn new(w: &Affine, tw: usize, th: usize, frame: &Plane) -> Coords {
-        Coords::mapped(tw, th, frame, |x, y| w.apply(x, y))
+        Coords::every(1, w, tw, th, frame)
+    }
+
+    /// Only the template pixels on a lattice of `stride` (the rest fall outside).
+    fn every(stride: usize, w: &Affine, tw: usize, th: usize, frame: &Plane) -> Coords {
+        Coords::mapped_every(stride, tw, th, frame, |x, y| w.apply(x, y))
     }
 
     /// Where `map` sends each template pixel (x, y) in the frame.
     pub fn mapped(
+        tw: usize,
+        th: usize,
+        frame: &Plane,
+        map: impl Fn(f64, f64) -> (f64, f64) + Sync,
+    ) -> Coords {
+        Coords::mapped_every(1, tw, th, frame, map)
+    }
+
+    fn mapped_every(
+        stride: usize,
         tw: usize,
         th: usize,
         frame: &Plane,
@@ -220,10 +262,10 @@ impl Coords {
             .map(|y| {
                 let mut idx = vec![u32::MAX; tw];
                 let (mut fx, mut fy) = (vec![0.0f32; tw], vec![0.0f32; tw]);
-                if y == 0 || y + 1 == th {
+                if y == 0 || y + 1 == th || y % stride != 0 {
                     return (idx, fx, fy);
                 }
-                for x in 1..tw - 1 {
+                for x in (stride..tw - 1).step_by(stride) {
                     let (u, v) = map(x as f64, y as f64);
                     let (u, v) = (u as f32, v as f32);
                     if u >= 0.0 && v >= 0.0 && u < iw && v < ih {
@@ -293,14 +335,23 @@ fn gauss_newton(
     layer: Option<(&[u8], &[f32])>,
     fit: &mut Fit,
     scale: &mut Option<f32>,
+    stride: usize,
 ) -> Option<(Affine, f32, f32)> {
     let (tw, th) = (view.width, view.height);
     let (gain, offset) = (fit.gain, fit.offset);
     // Residuals of the current warp, NaN outside the frame and on the template's border.
-    let cs = Coords::new(&fit.w, tw, th, &frame[0]);
+    let cs = Coords::every(stride, &fit.w, tw, th, &frame[0]);
     let mut resid = vec![0.0f32; tw * th];
     resid.par_chunks_mut(tw).enumerate().for_each(|(y, row)| {
+        if y % stride != 0 {
+            row.fill(f32::NAN);
+            return;
+        }
         for (x, r) in row.iter_mut().enumerate() {
+            if x % stride != 0 {
+                *r = f32::NAN;
+                continue;
+            }
             let i = y * tw + x;
             let img = &frame[layer.map_or(0, |l| l.0[i] as usize)];
             *r = cs
@@ -313,7 +364,7 @@ fn gauss_newton(
         .filter(|r| !r.is_nan())
         .map(|r| r.abs())
         .collect();
-    if valid.len() < 64 || valid.len() * 4 < tw * th {
+    if valid.len() < 64 || valid.len() * 4 * stride * stride < tw * th {
         return None;
     }
     // Robust scale: fixed after the first step so the weights, and with them the minimised
@@ -326,12 +377,13 @@ fn gauss_newton(
     let half = tw.max(th) as f32 / 2.0;
     let (h, b, c) = (0..th)
         .into_par_iter()
+        .step_by(stride)
         .map(|y| {
             let mut h = [[0.0f32; N]; N];
             let mut b = [0.0f32; N];
             let mut c = [0.0f64; 6];
             let ny = (y as f32 - cy) / half;
-            for x in 0..tw {
+            for x in (0..tw).step_by(stride) {
                 let i = y * tw + x;
                 let e = resid[i];
                 if e.is_nan() {
