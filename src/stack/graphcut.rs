@@ -222,10 +222,23 @@ impl<'a, T: Sample> Level<'a, T> {
     /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
     #[inline]
     fn unary(&self, p: usize, l: u8) -> i32 {
+        self.unary_with(p, l, self.unary_per_amp(p))
+    }
+
+    /// Focus cost per unit of amplitude below the sharpest frame's at `p`: one division a pixel,
+    /// shared by every label's cost there.
+    #[inline]
+    fn unary_per_amp(&self, p: usize) -> f32 {
+        self.unary_scale / (self.amps.max[p - self.amps.offset] as f32 + self.eps)
+    }
+
+    /// [`Self::unary`] given `per_amp`, [`Self::unary_per_amp`] at `p`.
+    #[inline]
+    fn unary_with(&self, p: usize, l: u8, per_amp: f32) -> i32 {
         let i = p - self.amps.offset;
         let m = self.amps.max[i] as f32;
         let a = self.amps.per_frame[l as usize][i] as f32;
-        ((m - a) / (m + self.eps) * self.unary_scale) as i32
+        ((m - a) * per_amp) as i32
     }
 }
 
@@ -311,9 +324,14 @@ impl<T: Sample> TileCosts<T> {
         for y in y0..y0 + h {
             for x in x0..x0 + w {
                 let p = y * width + x;
+                let per_amp = level.unary_per_amp(p);
                 for &l in labels {
-                    colors.extend_from_slice(level.colors(p, l));
-                    unary.push(level.unary(p, l));
+                    // Sample by sample: a memcpy call for each label's three samples cost more
+                    // than the copy.
+                    for &c in level.colors(p, l) {
+                        colors.push(c);
+                    }
+                    unary.push(level.unary_with(p, l, per_amp));
                 }
             }
         }
