@@ -60,6 +60,19 @@ impl Default for GraphCutParams {
     }
 }
 
+impl GraphCutParams {
+    /// Exhaustive expansion, the reference the labelling's energy is measured against: every
+    /// frame offered everywhere, and the three cycles the default ran before it was cut to two,
+    /// so that cheaper defaults are measured against a reference that did not get cheaper too.
+    pub fn exhaustive() -> Self {
+        Self {
+            candidates: usize::MAX,
+            max_cycles: 3,
+            ..Self::default()
+        }
+    }
+}
+
 /// Focus amplitudes of every frame on a run of rows of a level, and their maximum per pixel.
 struct Amps {
     /// Level pixel index of the first one held.
