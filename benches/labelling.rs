@@ -21,14 +21,10 @@ fn bench_labelling(c: &mut Criterion) {
     let coverage = vec![Coverage::full(p.width, p.height); p.frames];
     let mut g = c.benchmark_group("labelling_flats_16x0.7MP");
     g.sample_size(10).measurement_time(Duration::from_secs(30));
-    for (name, candidates) in [
-        ("default", GraphCutParams::default().candidates),
-        ("exhaustive", usize::MAX),
+    for (name, params) in [
+        ("default", GraphCutParams::default()),
+        ("exhaustive", GraphCutParams::exhaustive()),
     ] {
-        let params = GraphCutParams {
-            candidates,
-            ..GraphCutParams::default()
-        };
         g.bench_function(name, |b| {
             b.iter(|| {
                 black_box(label_stack(

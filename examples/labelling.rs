@@ -89,12 +89,10 @@ fn compare(frames: Vec<Image<u8>>, runs: usize, align: bool) -> Result<()> {
         "candidates", "labels s", "fuse s", "energy"
     );
     let mut energies = Vec::new();
-    for candidates in [GraphCutParams::default().candidates, usize::MAX] {
+    for graphcut in [GraphCutParams::default(), GraphCutParams::exhaustive()] {
+        let candidates = graphcut.candidates;
         let params = FuseParams {
-            graphcut: GraphCutParams {
-                candidates,
-                ..GraphCutParams::default()
-            },
+            graphcut,
             align: if align {
                 Some(Default::default())
             } else {

@@ -17,19 +17,15 @@ fn candidate_labelling_is_within_one_percent_of_exhaustive_on_flats() {
     };
     let frames = flats(&p);
     let coverage = vec![Coverage::full(p.width, p.height); p.frames];
-    let label = |candidates: usize| {
-        let params = GraphCutParams {
-            candidates,
-            ..GraphCutParams::default()
-        };
+    let label = |params: GraphCutParams| {
         let labels = label_stack(&frames, &coverage, 7, &params, usize::MAX, &NoProgress);
         (
             labelling_energy(&frames, &coverage, &labels, &params),
             labels,
         )
     };
-    let (default, labels) = label(GraphCutParams::default().candidates);
-    let (exhaustive, _) = label(usize::MAX);
+    let (default, labels) = label(GraphCutParams::default());
+    let (exhaustive, _) = label(GraphCutParams::exhaustive());
     let ratio = default as f64 / exhaustive as f64;
     eprintln!("energy {default} against exhaustive {exhaustive}: {ratio:.4}");
     assert!(ratio <= 1.01, "energy ratio {ratio:.4}");

@@ -181,10 +181,17 @@ fn run_move(
             if var(q, cur) {
                 // Both variable: the edge is added once, from its left/top end.
                 if let Some(right) = forward {
-                    // E(xp, xq) = A + (C-A)xp + (D-C)xq + (B+C-A-D)(1-xp)xq, D = 0.
-                    let a = costs.pairwise(p, q, lp, lq);
+                    // E(xp, xq) = A + (C-A)xp + (D-C)xq + (B+C-A-D)(1-xp)xq, D = 0. Where both
+                    // hold one label (most edges), A = 0 and C = B by symmetry.
                     let b = costs.pairwise(p, q, lp, alpha);
-                    let c = costs.pairwise(p, q, alpha, lq);
+                    let (a, c) = if lp == lq {
+                        (0, b)
+                    } else {
+                        (
+                            costs.pairwise(p, q, lp, lq),
+                            costs.pairwise(p, q, alpha, lq),
+                        )
+                    };
                     add_unary(g, p, 0, c - a);
                     add_unary(g, q, 0, -c);
                     let cap = (b + c - a).max(0);

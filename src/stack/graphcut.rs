@@ -37,7 +37,9 @@ pub struct GraphCutParams {
     /// neighbours hold; `usize::MAX` offers every frame everywhere (exhaustive expansion, the
     /// reference the labelling's energy is measured against).
     pub candidates: usize,
-    /// Expansion cycles over a window's moves, at most.
+    /// Expansion cycles over a window's moves, at most. A third cycle re-ran most moves of a
+    /// window to move a few pixels: on flats and amber_macro it cost a quarter of the moves'
+    /// work and lowered the energy by under 0.05 %.
     pub max_cycles: usize,
     /// Pyramid levels of the seam blending.
     pub blend_levels: usize,
@@ -52,8 +54,21 @@ impl Default for GraphCutParams {
             noise_floor: 0.002,
             coarse_pixels: 60_000,
             candidates: 2,
-            max_cycles: 3,
+            max_cycles: 2,
             blend_levels: 5,
+        }
+    }
+}
+
+impl GraphCutParams {
+    /// Exhaustive expansion, the reference the labelling's energy is measured against: every
+    /// frame offered everywhere, and the three cycles the default ran before it was cut to two,
+    /// so that cheaper defaults are measured against a reference that did not get cheaper too.
+    pub fn exhaustive() -> Self {
+        Self {
+            candidates: usize::MAX,
+            max_cycles: 3,
+            ..Self::default()
         }
     }
 }
@@ -222,10 +237,23 @@ impl<'a, T: Sample> Level<'a, T> {
     /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
     #[inline]
     fn unary(&self, p: usize, l: u8) -> i32 {
+        self.unary_with(p, l, self.unary_per_amp(p))
+    }
+
+    /// Focus cost per unit of amplitude below the sharpest frame's at `p`: one division a pixel,
+    /// shared by every label's cost there.
+    #[inline]
+    fn unary_per_amp(&self, p: usize) -> f32 {
+        self.unary_scale / (self.amps.max[p - self.amps.offset] as f32 + self.eps)
+    }
+
+    /// [`Self::unary`] given `per_amp`, [`Self::unary_per_amp`] at `p`.
+    #[inline]
+    fn unary_with(&self, p: usize, l: u8, per_amp: f32) -> i32 {
         let i = p - self.amps.offset;
         let m = self.amps.max[i] as f32;
         let a = self.amps.per_frame[l as usize][i] as f32;
-        ((m - a) / (m + self.eps) * self.unary_scale) as i32
+        ((m - a) * per_amp) as i32
     }
 }
 
@@ -311,9 +339,14 @@ impl<T: Sample> TileCosts<T> {
         for y in y0..y0 + h {
             for x in x0..x0 + w {
                 let p = y * width + x;
+                let per_amp = level.unary_per_amp(p);
                 for &l in labels {
-                    colors.extend_from_slice(level.colors(p, l));
-                    unary.push(level.unary(p, l));
+                    // Sample by sample: a memcpy call for each label's three samples cost more
+                    // than the copy.
+                    for &c in level.colors(p, l) {
+                        colors.push(c);
+                    }
+                    unary.push(level.unary_with(p, l, per_amp));
                 }
             }
         }
@@ -539,8 +572,10 @@ impl<T: Sample> Solve<'_, T> {
             .collect();
         progress.stage(Stage::Labels, plans.iter().map(Vec::len).sum());
         // After the first pass each tile is optimal for its fixed borders, so later passes
-        // only re-solve the strips along the first pass's tile borders.
-        let reach = tile / 4;
+        // only re-solve the strips along the first pass's tile borders. A border moves the
+        // labels only a few pixels into a tile: strips an eighth of a tile wide on each side
+        // (44 % of the pixels, against 75 % at a quarter) find the same energy within 0.01 %.
+        let reach = tile / 8;
         let near_border = |v: usize| v % tile < reach || v % tile >= tile - reach;
         let strips: Vec<bool> = (0..w * h)
             .into_par_iter()
