@@ -19,6 +19,7 @@ use anyhow::{bail, Context, Result};
 use focusd::develop::demosaic::demosaic;
 use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::imageio::load_rgb8;
+use focusd::sim::develop::grey_edge;
 use focusd::sim::{render, SimParams};
 use focusd::stack::blur::gaussian_blur_channels;
 use focusd::stack::fuse::fuse;
@@ -102,15 +103,7 @@ fn simulated() {
     for sigma in [0.0f32, 0.5] {
         let mut total = Errors::default();
         for seed in [3u64, 11, 29] {
-            let truth = render(&SimParams {
-                width: 240,
-                height: 180,
-                planes: 2,
-                seed,
-                noise_sigma: 0.0,
-                ..SimParams::default()
-            })
-            .truth;
+            let truth = render(&SimParams::demosaic_scene(seed)).truth;
             let lin = gaussian_blur_channels(&decode(&truth), sigma);
             let truth = encode(&lin);
             for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
@@ -148,14 +141,7 @@ fn real(dirs: &[PathBuf]) -> Result<()> {
 fn fused() {
     for seed in [5u64, 17] {
         for sigma in [0.0f32, 0.5] {
-            let s = render(&SimParams {
-                width: 256,
-                height: 192,
-                planes: 5,
-                seed,
-                linear_light: true,
-                ..SimParams::default()
-            });
+            let s = render(&SimParams::raw_stack(seed));
             let lin = |f: &Image<u8>| gaussian_blur_channels(&decode(f), sigma);
             let frames: Vec<Image<f32>> = s.frames.iter().map(lin).collect();
             let truth = encode(&lin(&s.truth));
@@ -213,15 +199,9 @@ fn fused() {
 }
 
 fn edges() {
-    let edge = |slope: f32, width: f32| {
-        Image::from_fn(64, 64, 3, move |x, y, _| {
-            let d = x as f32 - 32.0 - slope * (y as f32 - 32.0);
-            (0.5 + d / width).clamp(0.0, 1.0) * 0.8 + 0.05
-        })
-    };
     for width in [1.0f32, 3.0] {
         for slope in [0.0f32, 0.2, 1.0] {
-            let out = developed(&Mosaic::sample(&edge(slope, width), BayerOrder::Rggb));
+            let out = developed(&Mosaic::sample(&grey_edge(slope, width), BayerOrder::Rggb));
             let fringe = out
                 .data
                 .chunks_exact(3)

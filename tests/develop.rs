@@ -34,14 +34,7 @@ struct Stack {
 }
 
 fn stack(seed: u64, sigma: f32) -> Stack {
-    let s = render(&SimParams {
-        width: 256,
-        height: 192,
-        planes: 5,
-        seed,
-        linear_light: true,
-        ..SimParams::default()
-    });
+    let s = render(&SimParams::raw_stack(seed));
     let linear = |f: &Image<u8>| gaussian_blur_channels(&decode(f), sigma);
     let frames: Vec<Image<f32>> = s.frames.iter().map(linear).collect();
     Stack {

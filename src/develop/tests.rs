@@ -10,17 +10,7 @@ use crate::stack::metrics::psnr;
 fn truths() -> Vec<Image<u8>> {
     [3u64, 11, 29]
         .iter()
-        .map(|&seed| {
-            sim::render(&SimParams {
-                width: 240,
-                height: 180,
-                planes: 2,
-                seed,
-                noise_sigma: 0.0,
-                ..SimParams::default()
-            })
-            .truth
-        })
+        .map(|&seed| sim::render(&SimParams::demosaic_scene(seed)).truth)
         .collect()
 }
 
@@ -90,17 +80,9 @@ fn zipper(img: &Image<u8>) -> u8 {
 
 #[test]
 fn grey_edges_get_little_false_colour_and_no_zipper() {
-    // A black-to-white edge at a slant (every sub-pixel phase), its ramp `width` px wide, as a
-    // sharp lens draws it (a one-pixel step is finer than any Bayer sensor can sample).
-    let edge = |slope: f32, width: f32| {
-        Image::from_fn(64, 64, 3, move |x, y, _| {
-            let d = x as f32 - 32.0 - slope * (y as f32 - 32.0);
-            (0.5 + d / width).clamp(0.0, 1.0) * 0.8 + 0.05
-        })
-    };
     for width in [1.0f32, 3.0] {
         for slope in [0.0f32, 0.2, 1.0] {
-            let m = Mosaic::sample(&edge(slope, width), BayerOrder::Rggb);
+            let m = Mosaic::sample(&sim::develop::grey_edge(slope, width), BayerOrder::Rggb);
             let good = encode(&demosaic(&m));
             let base = encode(&bilinear(&m));
             let mhc = encode(&encoded(&m, malvar));

@@ -16,6 +16,7 @@
 //! labelling.
 
 pub mod bundle;
+pub mod develop;
 pub mod flats;
 pub mod optics;
 pub mod pose;
