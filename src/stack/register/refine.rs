@@ -156,13 +156,13 @@ pub fn refine(tpl: &Template, frame: &Levels, init: Affine, iterations: usize) -
                     let up = Stack::new(frame.get(k + 1));
                     let t = &coarse.layers[0];
                     let w1 = to_level(&from_level(&fit.w, k), k + 1);
-                    let cs = Coords::new(&w1, t.width, t.height, &up.layers[0]);
+                    let cs = Coords::new(&w1, t.width, t.height, &up.layers[0], 1);
                     let warped = warp_stack(&up, &cs, fit.gain, fit.offset);
                     let p1 = equalise::choose(coarse, &warped);
                     equalise::finer(&p1, t.width, t.height, view.width, view.height)
                 }
                 None => {
-                    let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0]);
+                    let cs = Coords::new(&fit.w, view.width, view.height, &stack.layers[0], 1);
                     let warped = warp_stack(&stack, &cs, fit.gain, fit.offset);
                     equalise::choose(&tpl.stack, &warped)
                 }
@@ -230,12 +230,8 @@ pub(super) struct Coords {
 }
 
 impl Coords {
-    fn new(w: &Affine, tw: usize, th: usize, frame: &Plane) -> Coords {
-        Coords::every(1, w, tw, th, frame)
-    }
-
-    /// Only the template pixels on a lattice of `stride` (the rest fall outside).
-    fn every(stride: usize, w: &Affine, tw: usize, th: usize, frame: &Plane) -> Coords {
+    /// Where `w` sends the template pixels on a lattice of `stride` (the rest fall outside).
+    fn new(w: &Affine, tw: usize, th: usize, frame: &Plane, stride: usize) -> Coords {
         Coords::mapped_every(stride, tw, th, frame, |x, y| w.apply(x, y))
     }
 
@@ -340,18 +336,11 @@ fn gauss_newton(
     let (tw, th) = (view.width, view.height);
     let (gain, offset) = (fit.gain, fit.offset);
     // Residuals of the current warp, NaN outside the frame and on the template's border.
-    let cs = Coords::every(stride, &fit.w, tw, th, &frame[0]);
+    let cs = Coords::new(&fit.w, tw, th, &frame[0], stride);
     let mut resid = vec![0.0f32; tw * th];
     resid.par_chunks_mut(tw).enumerate().for_each(|(y, row)| {
-        if y % stride != 0 {
-            row.fill(f32::NAN);
-            return;
-        }
+        // Off the lattice `cs` maps nothing: those residuals are NaN like any outside the frame.
         for (x, r) in row.iter_mut().enumerate() {
-            if x % stride != 0 {
-                *r = f32::NAN;
-                continue;
-            }
             let i = y * tw + x;
             let img = &frame[layer.map_or(0, |l| l.0[i] as usize)];
             *r = cs
