@@ -11,7 +11,7 @@
 //!   crisp edge's coefficients win over the other frame's defocus spill.
 
 use super::blur::{blur_rows_into, gaussian_half, strip_rows, PlaneRows, RowBlur, Rows};
-use super::image::{Image, Plane, Sample};
+use super::image::{luma_of, Image, Plane, Sample};
 use super::pyramid::{
     collapse_of, fill_gaussian, fill_laplacian, levels_for, with_levels, zeros_like,
 };
@@ -380,7 +380,7 @@ impl Rows for AbsLuma<'_> {
         } else {
             let rgb = band(0).iter().zip(band(1)).zip(band(2));
             for (o, ((r, g), b)) in out.iter_mut().zip(rgb) {
-                *o = (0.299 * r + 0.587 * g + 0.114 * b).abs();
+                *o = luma_of(*r, *g, *b).abs();
             }
         }
     }

@@ -1,5 +1,11 @@
 //! In-memory frames, generic over the sample type so 8- and 16-bit stacks keep their depth.
 
+/// Luma from red, green and blue with the Rec. 601 weights, in whatever scale and light the
+/// three come in: the one place the weights are written.
+pub fn luma_of(r: f32, g: f32, b: f32) -> f32 {
+    0.299 * r + 0.587 * g + 0.114 * b
+}
+
 /// A pixel sample type: `u8`, `u16` or `f32` (normalised to 0..=1).
 pub trait Sample: Copy + Send + Sync + Default + 'static {
     /// The value that stands for full scale.
@@ -124,9 +130,7 @@ impl<T: Sample> Image<T> {
             1 => samples.iter().map(|v| v.to_f32() * scale).collect(),
             _ => samples
                 .chunks_exact(self.channels)
-                .map(|p| {
-                    (0.299 * p[0].to_f32() + 0.587 * p[1].to_f32() + 0.114 * p[2].to_f32()) * scale
-                })
+                .map(|p| luma_of(p[0].to_f32(), p[1].to_f32(), p[2].to_f32()) * scale)
                 .collect(),
         };
         Plane::from_vec(self.width, rows.len(), 1, data)

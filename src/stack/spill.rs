@@ -27,7 +27,7 @@
 
 use super::align::Coverage;
 use super::blur::{downsample_area, gaussian_blur};
-use super::image::{Image, Plane, Sample, Tap};
+use super::image::{luma_of, Image, Plane, Sample, Tap};
 use super::order::Order;
 use super::srgb;
 use super::{Progress, Stage};
@@ -494,7 +494,7 @@ fn luma(planes: &[Plane], light: Light) -> Plane {
     let data = (0..px)
         .map(|i| match planes.len() {
             1 => v(0, i),
-            _ => 0.299 * v(0, i) + 0.587 * v(1, i) + 0.114 * v(2, i),
+            _ => luma_of(v(0, i), v(1, i), v(2, i)),
         })
         .collect();
     Plane::from_vec(planes[0].width, planes[0].height, 1, data)
