@@ -12,7 +12,9 @@
 //! - `α` and `C` from the label map and the labelled frame (a region labelled `k` is where
 //!   frame `k` is sharp);
 //! - `G`'s σ for each pair of labels from how well frame `k`, blurred, explains frame `l` over
-//!   the interior of `k`'s region (the blur fit);
+//!   the interior of `k`'s region (the blur fit); a near object too small for its deepest
+//!   blurs to be fitted takes theirs from the stack's focal axis, fitted to the other pairs
+//!   ([`focal_axis`]);
 //! - the light the defocus mixed in: a camera's lens mixes in linear light while its frames are
 //!   stored sRGB-encoded, but a renderer may have mixed display values; the blur fit is run in
 //!   both and the one that explains the stack better is used, since un-mixing in the wrong one
@@ -27,6 +29,7 @@
 
 use super::align::Coverage;
 use super::blur::{downsample_area, gaussian_blur};
+use super::focal_axis;
 use super::image::{luma_of, Image, Plane, Sample, Tap};
 use super::order::Order;
 use super::srgb;
@@ -94,6 +97,8 @@ pub struct Pair {
     pub far: u8,
     /// σ of the Gaussian, in full-resolution pixels.
     pub sigma: f32,
+    /// Predicted from the other pairs ([`with_predicted`]), not fitted.
+    pub predicted: bool,
 }
 
 /// What the un-mixing did.
@@ -123,9 +128,10 @@ impl std::fmt::Display for Unmixed {
         let all = (self.frame_pixels * self.changed.len()).max(1);
         write!(
             f,
-            "{} near/far pairs, defocus σ {lo:.1}–{hi:.1} px, mixed in {} light; {:.1} % of the \
-             frames' pixels un-mixed, {} pixels moved to the near object's frame",
+            "{} near/far pairs ({} predicted), defocus σ {lo:.1}–{hi:.1} px, mixed in {} light; \
+             {:.1} % of the frames' pixels un-mixed, {} pixels moved to the near object's frame",
             self.pairs.len(),
+            self.pairs.iter().filter(|p| p.predicted).count(),
             match light {
                 Light::Linear => "linear",
                 Light::Display => "display",
@@ -242,7 +248,7 @@ pub fn unmix<T: Sample>(
         .map(|p| Pair {
             near: frame_of(p.near as usize) as u8,
             far: frame_of(p.far as usize) as u8,
-            sigma: p.sigma,
+            ..p
         })
         .collect();
     out
@@ -534,9 +540,41 @@ fn fit(
         }
     }
     match best {
-        Some((_, light, pairs)) => (Some(light), pairs),
+        Some((_, light, pairs)) => (Some(light), with_predicted(pairs, n)),
         None => (None, Vec::new()),
     }
+}
+
+/// `fitted` and, for every near depth with at least one fitted pair (a near object whose
+/// blur was measured), its farther pairs that could not be fitted, with the σ the stack's
+/// focal axis predicts ([`focal_axis`]): the deepest blurs of a small object leave too little
+/// interior to fit, yet spill the most.
+fn with_predicted(fitted: Vec<Pair>, n: usize) -> Vec<Pair> {
+    let measured: Vec<focal_axis::Measured> = fitted
+        .iter()
+        .map(|p| (p.near as usize, p.far as usize, p.sigma))
+        .collect();
+    let Some(phi) = focal_axis::positions(n, &measured) else {
+        return fitted;
+    };
+    let mut near: Vec<usize> = measured.iter().map(|&(k, _, _)| k).collect();
+    near.sort_unstable();
+    near.dedup();
+    let predicted: Vec<Pair> = near
+        .into_iter()
+        .flat_map(|k| (k + 2..n).map(move |l| (k, l)))
+        .filter(|&(k, l)| !measured.iter().any(|&(a, b, _)| (a, b) == (k, l)))
+        .filter_map(|(k, l)| {
+            let sigma = phi[l] - phi[k];
+            (sigma >= SIGMA_MIN).then(|| Pair {
+                near: k as u8,
+                far: l as u8,
+                sigma: (2.0 * sigma.min(SIGMA_MAX)).round() / 2.0,
+                predicted: true,
+            })
+        })
+        .collect();
+    fitted.into_iter().chain(predicted).collect()
 }
 
 /// Fits near depth `k`'s blur in each of the frames `far`, on a crop around its region's
@@ -660,6 +698,7 @@ fn fit_near(
                 near: k as u8,
                 far: l as u8,
                 sigma,
+                predicted: false,
             };
             (pair, rel)
         })
@@ -953,6 +992,43 @@ mod tests {
         let stages = steps.stages.into_inner().unwrap();
         assert_eq!(stages, [(Stage::Spill, 13)]);
         assert_eq!(steps.done.into_inner(), 13);
+    }
+
+    /// The main job's nearest object is fitted into the frames two and three planes behind it
+    /// but is too small for the two farthest: those pairs are added with the σ the other
+    /// pairs' focal axis gives (2 px a plane here); a near depth with nothing fitted gets none.
+    #[test]
+    fn the_pairs_too_small_to_fit_are_predicted_from_the_others() {
+        let fitted = |near: u8, far: u8| Pair {
+            near,
+            far,
+            sigma: 2.0 * f32::from(far - near),
+            predicted: false,
+        };
+        let pairs = vec![
+            fitted(0, 2),
+            fitted(0, 3),
+            fitted(1, 3),
+            fitted(1, 4),
+            fitted(1, 5),
+            fitted(2, 4),
+            fitted(2, 5),
+        ];
+        let all = with_predicted(pairs.clone(), 6);
+        assert_eq!(
+            all[..pairs.len()],
+            pairs[..],
+            "the fitted pairs are kept as they are"
+        );
+        let added: Vec<(u8, u8, f32)> = all[pairs.len()..]
+            .iter()
+            .map(|p| {
+                assert!(p.predicted);
+                (p.near, p.far, p.sigma)
+            })
+            .collect();
+        // Depth 3 has no fitted pair, so (3, 5) is not added.
+        assert_eq!(added, [(0, 4, 8.0), (0, 5, 10.0)]);
     }
 
     /// A disc 24 px in radius blurred by 7 px behind: deeper than 3σ it has no interior to fit
