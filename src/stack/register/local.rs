@@ -282,7 +282,7 @@ fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
             .collect();
         pool(&Plane::from_vec(w, h, 1, data))
     };
-    let (still, moved) = (sq(false), sq(true));
+    let (still, moved) = rayon::join(|| sq(false), || sq(true));
     let gain = EXPLAINED;
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
@@ -348,10 +348,10 @@ impl Tensor {
             ))
             .data
         };
-        let (mut xx, xy, mut yy) = (
-            prod(|[x, _]| x * x),
-            prod(|[x, y]| x * y),
-            prod(|[_, y]| y * y),
+        // The three in parallel: a side's chain of frames is otherwise one thread's work.
+        let (mut xx, (xy, mut yy)) = rayon::join(
+            || prod(|[x, _]| x * x),
+            || rayon::join(|| prod(|[x, y]| x * y), || prod(|[_, y]| y * y)),
         );
         let energy = xx.iter().chain(&yy).sum::<f32>() / (2 * w * h) as f32;
         let ridge = RIDGE * energy + 1e-12;
@@ -365,39 +365,25 @@ impl Tensor {
 /// `a`'s pooled tensor `t`.
 fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) {
     let (w, h) = (a.width, a.height);
-    // Per pixel: gx·e, gy·e; zero where the residual is undefined (outside the frame).
-    let prods: Vec<[f32; 2]> = (0..w * h)
-        .into_par_iter()
-        .map(|i| {
-            let (x, y) = ((i % w) as f32 + f.dx[i], (i / w) as f32 + f.dy[i]);
-            let e = bilinear(b, x, y) - a.data[i];
-            let [gx, gy] = t.grad[i];
-            if e.is_nan() {
-                [0.0; 2]
-            } else {
-                [gx * e, gy * e]
+    // Per pixel: gx·e, gy·e; zero where the residual is undefined (outside the frame). Written
+    // straight into the two planes pooled, with no interleaved copy between.
+    let (mut xe, mut ye) = (vec![0.0f32; w * h], vec![0.0f32; w * h]);
+    xe.par_chunks_mut(w)
+        .zip(ye.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (xr, yr))| {
+            for (x, (xo, yo)) in xr.iter_mut().zip(yr).enumerate() {
+                let i = y * w + x;
+                let e = bilinear(b, x as f32 + f.dx[i], y as f32 + f.dy[i]) - a.data[i];
+                if !e.is_nan() {
+                    let [gx, gy] = t.grad[i];
+                    (*xo, *yo) = (gx * e, gy * e);
+                }
             }
-        })
-        .collect();
+        });
     let (xe, ye) = rayon::join(
-        || {
-            pool(&Plane::from_vec(
-                w,
-                h,
-                1,
-                prods.iter().map(|v| v[0]).collect(),
-            ))
-            .data
-        },
-        || {
-            pool(&Plane::from_vec(
-                w,
-                h,
-                1,
-                prods.iter().map(|v| v[1]).collect(),
-            ))
-            .data
-        },
+        || pool(&Plane::from_vec(w, h, 1, xe)).data,
+        || pool(&Plane::from_vec(w, h, 1, ye)).data,
     );
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
