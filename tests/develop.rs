@@ -8,13 +8,14 @@
 //!
 //! And how much the mosaic costs the fused picture: fusing the developed mosaics against
 //! fusing the simulator's RGB frames, which no mosaic sampled. Issue 15 asks for 1 dB; measured
-//! 3 December 2026 (seeds 5 and 17): 1.43 and 1.41 dB short on the simulator's sharp frames,
-//! 1.00 and 1.07 dB through a 0.5 px lens blur, with the directional green (Hamilton-Adams'
-//! green before: 1.81 and 1.89, 1.28 and 1.51; Malvar-He-Cutler before that: about 3 and 2.3).
-//! Not met on sharp frames: the fused error is the fusion's own (the RGB frames' MSE) plus the
-//! demosaic's on the in-focus parts, which comes to what one frame's demosaic measures alone
-//! (33-34 dB sharp, 36-38 dB blurred, as in the unit tests). Within 1 dB would need the demosaic
-//! at about 36 dB on sharp frames. The test guards what is reached.
+//! 3 December 2026 (seeds 5 and 17): 1.08 and 1.27 dB short on the simulator's sharp frames,
+//! 0.62 and 0.95 dB through a 0.5 px lens blur, with the weighted residual interpolation (the
+//! plain averages before: 1.43 and 1.48, 0.82 and 1.10; Hamilton-Adams' green before that: 1.81
+//! and 1.89, 1.28 and 1.51; Malvar-He-Cutler before that: about 3 and 2.3). Not met on sharp
+//! frames: the fused error is the fusion's own (the RGB frames' MSE) plus the demosaic's on the
+//! in-focus parts, which comes to what one frame's demosaic measures alone (33.5-34.6 dB sharp,
+//! 37-39 dB blurred, as in the unit tests). Within 1 dB would need the demosaic at about 35.5 dB
+//! on sharp frames. The test guards what is reached.
 
 use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::sim::{render, SimParams};
@@ -94,7 +95,7 @@ fn developing_each_frame_before_fusing_costs_under_1_db() {
 }
 
 #[test]
-fn fusing_developed_mosaics_comes_within_1_6_db_of_fusing_rgb_frames_1_2_db_through_a_blur() {
+fn fusing_developed_mosaics_comes_within_1_4_db_of_fusing_rgb_frames_1_1_db_through_a_blur() {
     for seed in [5u64, 17] {
         for sigma in [0.0, 0.5] {
             let s = stack(seed, sigma);
@@ -110,7 +111,7 @@ fn fusing_developed_mosaics_comes_within_1_6_db_of_fusing_rgb_frames_1_2_db_thro
                  fused {rgb:.2} dB, {:.2} dB short",
                 rgb - mosaic
             );
-            let allowed = if sigma > 0.0 { 1.2 } else { 1.6 };
+            let allowed = if sigma > 0.0 { 1.1 } else { 1.4 };
             assert!(
                 mosaic >= rgb - allowed,
                 "seed {seed} blur {sigma}: {mosaic:.2} dB, {:.2} dB short of the RGB frames' \

@@ -44,7 +44,7 @@ fn demosaic_beats_bilinear_by_6_db_and_malvar_by_2_5_db_on_simulated_scenes() {
                      Malvar-He-Cutler {mhc:.2} dB, bilinear {before:.2} dB (on encoded samples \
                      {same_domain:.2} dB)"
                 );
-                // Measured 6.8-8.1 dB above bilinear, 2.9-4.2 above Malvar-He-Cutler.
+                // Measured 7.6-9.0 dB above bilinear, 3.7-4.8 above Malvar-He-Cutler.
                 assert!(
                     good >= before.max(same_domain) + 6.0 && good >= mhc + 2.5,
                     "scene {i} blur {sigma} {order:?}: {good:.2} dB against bilinear's \
@@ -92,9 +92,9 @@ fn grey_edges_get_little_false_colour_and_no_zipper() {
                  bilinear {fb}"
             );
             // At most half bilinear's everywhere; along edges near the sampling axes, which
-            // are most of a picture's, at most half Malvar-He-Cutler's too (measured 0-11
+            // are most of a picture's, at most half Malvar-He-Cutler's too (measured 0-9
             // against 7-26 in 8-bit units); on the 45° edges no more than Malvar-He-Cutler's
-            // and a step (9-44 against 24-43).
+            // and a step (8-40 against 24-43).
             assert!(
                 fg * 2 <= fb && (slope == 1.0 || fg * 2 <= fm) && fg <= fm + 2,
                 "width {width} slope {slope}: false colour {fg}, Malvar-He-Cutler {fm}, \
