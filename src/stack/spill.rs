@@ -37,9 +37,9 @@ use super::{Progress, Stage};
 use rayon::prelude::*;
 
 /// Pixels of the reduced working resolution, at most: enough to fit blurs of 1 px and more.
-/// (200k, which works on the 0.17 MP replay bundles whole, fits their nearest objects into the
-/// farthest frames too, +0.06 dB on `bundles/shaken`, but at four times the work: under qemu
-/// the daemon's 20 s watchdog fired, before this stage reported progress; not tried since.)
+/// A small near object whose deep blur in the farthest frames cannot be fitted at this size
+/// gets it from the focal axis instead ([`focal_axis`]), which is what working on the 0.17 MP
+/// replay bundles whole (200k) once gained, at four times the work.
 const WORK_PIXELS: usize = 150_000;
 /// Blur σ (full-resolution pixels) the fit tries, to ½ px.
 const SIGMA_MIN: f32 = 1.0;
