@@ -186,7 +186,11 @@ pub fn fuse<T: Sample>(
             }
             let (image, _) = compose(
                 &frames,
-                Select::Labels(&labels, params.graphcut.blend_levels),
+                Select::Labels(
+                    &labels,
+                    params.graphcut.blend_levels,
+                    params.spill.then_some(order.order),
+                ),
                 plan.band_rows,
                 progress,
             );

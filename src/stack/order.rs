@@ -79,6 +79,12 @@ impl Order {
             _ => depth,
         }
     }
+
+    /// The depth rank (0 nearest) of frame `frame` of a stack of `n`, by the assumed order: the
+    /// inverse of [`Order::frame_at`], which is its own inverse.
+    pub fn depth_of(self, frame: usize, n: usize) -> usize {
+        self.frame_at(frame, n)
+    }
 }
 
 /// The votes of a stack's occlusion edges and the order they decide.

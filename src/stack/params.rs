@@ -27,8 +27,9 @@ pub struct FuseParams {
     pub crop: bool,
     /// Bytes the fuse should stay within (see `memory::plan`).
     pub memory: usize,
-    /// Take nearer objects' defocus spill out of farther frames before composing (graph cut
-    /// only; see `spill`).
+    /// Take nearer objects' defocus spill out of farther frames before composing, and keep
+    /// farther frames out of nearer labels' finest band, where they show the background through
+    /// a defocused near object's edge (graph cut only; see `spill` and `compose`).
     pub spill: bool,
 }
 
