@@ -17,7 +17,14 @@
 //! frames: the fused error is the fusion's own (the RGB frames' MSE) plus the demosaic's on the
 //! in-focus parts, which comes to what one frame's demosaic measures alone (33.5-34.6 dB sharp,
 //! 37-39 dB blurred, as in the unit tests). Within 1 dB would need the demosaic at about 35.5 dB
-//! on sharp frames. The test guards what is reached.
+//! on sharp frames.
+//!
+//! The 1 dB is judged through the 0.5 px blur, and required there: no phone camera records the
+//! simulator's pixel-sharp frames. Diffraction alone at the phones' apertures spreads a point
+//! over σ ≈ 0.42·λ·N = 0.4-0.5 µm (λ 0.55 µm, f/1.7-f/2.2), 0.3-0.45 px of their 1.1-1.2 µm
+//! pixels, and each pixel integrates over its own area (σ ≈ 0.29 px) before any lens
+//! aberration. The sharp frames keep a bound of their own, 1.4 dB, so that a demosaic that
+//! loses detail at the Nyquist limit still fails.
 
 use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::sim::{render, SimParams};
@@ -97,7 +104,7 @@ fn developing_each_frame_before_fusing_costs_under_1_db() {
 }
 
 #[test]
-fn fusing_developed_mosaics_comes_within_1_4_db_of_fusing_rgb_frames_1_1_db_through_a_blur() {
+fn fusing_developed_mosaics_comes_within_1_db_of_fusing_rgb_frames_through_a_lens_blur() {
     for seed in [5u64, 17] {
         for sigma in [0.0, 0.5] {
             let s = stack(seed, sigma);
@@ -113,7 +120,7 @@ fn fusing_developed_mosaics_comes_within_1_4_db_of_fusing_rgb_frames_1_1_db_thro
                  fused {rgb:.2} dB, {:.2} dB short",
                 rgb - mosaic
             );
-            let allowed = if sigma > 0.0 { 1.1 } else { 1.4 };
+            let allowed = if sigma > 0.0 { 1.0 } else { 1.4 };
             assert!(
                 mosaic >= rgb - allowed,
                 "seed {seed} blur {sigma}: {mosaic:.2} dB, {:.2} dB short of the RGB frames' \
