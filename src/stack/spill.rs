@@ -299,14 +299,17 @@ fn window_min(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
 fn min_along_rows(map: &[u8], w: usize, r: usize) -> Vec<u8> {
     let k = 2 * r + 1;
     let len = w + 2 * r;
-    map.par_chunks(w)
-        .flat_map_iter(|row| {
+    // Written in place, with each thread's two running minima reused from row to row: collected
+    // from per-row iterators, the map was gathered in pieces and copied together again.
+    let mut out = vec![0u8; map.len()];
+    out.par_chunks_mut(w).zip(map.par_chunks(w)).for_each_init(
+        || (vec![0u8; len], vec![0u8; len]),
+        |(ahead, behind), (out, row)| {
             let at = |i: usize| match i.checked_sub(r) {
                 Some(j) if j < w => row[j],
                 _ => u8::MAX,
             };
             // Minimum from the start of each block of k to i, and from i to the block's end.
-            let (mut ahead, mut behind) = (vec![0u8; len], vec![0u8; len]);
             for i in 0..len {
                 ahead[i] = if i % k == 0 {
                     at(i)
@@ -321,9 +324,12 @@ fn min_along_rows(map: &[u8], w: usize, r: usize) -> Vec<u8> {
                     behind[i + 1].min(at(i))
                 };
             }
-            (0..w).map(move |x| behind[x].min(ahead[x + 2 * r]))
-        })
-        .collect()
+            for (x, o) in out.iter_mut().enumerate() {
+                *o = behind[x].min(ahead[x + 2 * r]);
+            }
+        },
+    );
+    out
 }
 
 fn transpose(map: &[u8], w: usize, h: usize) -> Vec<u8> {

@@ -86,13 +86,22 @@ impl OffsetField {
     /// The offset at reference point (x, y), clamped to the grid's edge beyond it.
     #[inline]
     pub fn at(&self, x: f64, y: f64) -> (f64, f64) {
-        let gx = (x / self.step).clamp(0.0, (self.cols - 1) as f64);
-        let gy = (y / self.step).clamp(0.0, (self.rows - 1) as f64);
-        let (i, j) = (
-            (gx as usize).min(self.cols.saturating_sub(2)),
-            (gy as usize).min(self.rows.saturating_sub(2)),
-        );
-        let (fx, fy) = (gx - i as f64, gy - j as f64);
+        self.between(self.cell(x, self.cols), self.cell(y, self.rows))
+    }
+
+    /// The grid cell along an axis of `nodes` nodes that reference coordinate `x` falls in, and
+    /// how far across it: apart so that a raster scan finds each column's once per frame and
+    /// each row's once per row, not two divisions and four clamps per pixel.
+    #[inline]
+    pub fn cell(&self, x: f64, nodes: usize) -> (usize, f64) {
+        let g = (x / self.step).clamp(0.0, (nodes - 1) as f64);
+        let i = (g as usize).min(nodes.saturating_sub(2));
+        (i, g - i as f64)
+    }
+
+    /// The offset between the nodes of `cell`s along x (`cols`) and along y (`rows`).
+    #[inline]
+    pub fn between(&self, (i, fx): (usize, f64), (j, fy): (usize, f64)) -> (f64, f64) {
         let node = |i: usize, j: usize| {
             let (dx, dy) = self.offsets[j.min(self.rows - 1) * self.cols + i.min(self.cols - 1)];
             (dx as f64, dy as f64)
@@ -141,6 +150,41 @@ impl Warp {
                 (u + dx, v + dy)
             }
             None => (u, v),
+        }
+    }
+
+    /// [`Warp::apply`] for a raster scan of a `width`-pixel-wide reference: the field's cells
+    /// along x are found once for every row.
+    pub fn raster(&self, width: usize) -> Raster<'_> {
+        let cols = match &self.field {
+            Some(f) => (0..width).map(|x| f.cell(x as f64, f.cols)).collect(),
+            None => Vec::new(),
+        };
+        Raster { warp: self, cols }
+    }
+}
+
+/// A [`Warp`] with its field's cells along x found ([`Warp::raster`]).
+pub struct Raster<'a> {
+    warp: &'a Warp,
+    cols: Vec<(usize, f64)>,
+}
+
+impl Raster<'_> {
+    /// [`Warp::apply`] at pixel x of row `y`, as a function of x.
+    #[inline]
+    pub fn row(&self, y: usize) -> impl Fn(usize) -> (f64, f64) + '_ {
+        let yf = y as f64;
+        let cell = self.warp.field.as_ref().map(|f| f.cell(yf, f.rows));
+        move |x| {
+            let (u, v) = self.warp.affine.apply(x as f64, yf);
+            match (&self.warp.field, cell) {
+                (Some(f), Some(row)) => {
+                    let (dx, dy) = f.between(self.cols[x], row);
+                    (u + dx, v + dy)
+                }
+                _ => (u, v),
+            }
         }
     }
 }
@@ -212,6 +256,13 @@ mod tests {
             field: Some(f),
         };
         assert_eq!(w.apply(10.0, 0.0), (14.0, 0.0));
+        let raster = w.raster(30);
+        for y in [0, 7, 25] {
+            let at = raster.row(y);
+            for x in [0, 3, 12, 29] {
+                assert_eq!(at(x), w.apply(x as f64, y as f64), "({x}, {y})");
+            }
+        }
         assert_eq!(Warp::affine(Affine::IDENTITY).apply(2.0, 3.0), (2.0, 3.0));
     }
 }
