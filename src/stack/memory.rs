@@ -94,7 +94,10 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     let fine = p.align.as_ref().map_or(0, |a| a.refine_pixels.min(px / 4));
     let refine = |k: usize| s.frames * fine * 16 / 3 + (k + 1) * 8 * 4 * fine;
     let register = |k: usize| frames + (k * px * 10).max(refine(k));
-    let warp = frames + 2 * frame + 4 * px;
+    // Warping: the frames, the spare frame each is warped into, and the frame being warped as
+    // floats, four lanes a pixel for colour (one vector multiply-add a tap; `align`), one for
+    // grey.
+    let warp = frames + frame + 4 * px * if s.channels == 1 { 1 } else { 4 };
     // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps, and
     // the luma of the frame being measured; in bands, the amplitudes of a band's rows and, while
     // each frame's are measured for the coarse level, one frame's at full size.
