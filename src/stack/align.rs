@@ -253,10 +253,24 @@ pub fn warp_frame_into<T: Sample>(
         out.same_geometry(reference),
         "output is not the reference's geometry"
     );
-    match reference.channels {
-        1 => warp_channels::<T, 1, 1>(frame, reference, warp, exposure, &mut out.data, scratch),
-        3 => warp_channels::<T, 3, 4>(frame, reference, warp, exposure, &mut out.data, scratch),
-        n => panic!("frames have 1 or 3 channels, not {n}"),
+    match (reference.channels, warp_lanes(reference.channels)) {
+        (1, 1) => {
+            warp_channels::<T, 1, 1>(frame, reference, warp, exposure, &mut out.data, scratch)
+        }
+        (3, 4) => {
+            warp_channels::<T, 3, 4>(frame, reference, warp, exposure, &mut out.data, scratch)
+        }
+        (n, _) => panic!("frames have 1 or 3 channels, not {n}"),
+    }
+}
+
+/// Float lanes a pixel the warp holds a frame in (see [`warp_channels`]): one for grey, four
+/// for colour. The memory plan counts its scratch with this.
+pub fn warp_lanes(channels: usize) -> usize {
+    if channels == 1 {
+        1
+    } else {
+        4
     }
 }
 

@@ -7,6 +7,7 @@
 //! smallest bands: a phone that swaps is slower, one whose job aborted has nothing. Estimates are
 //! in bytes and are checked against `/usr/bin/time -v` by `scripts/bench-memory`.
 
+use super::align::warp_lanes;
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
 use super::params::{FuseParams, Method};
 use super::spill;
@@ -95,9 +96,8 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     let refine = |k: usize| s.frames * fine * 16 / 3 + (k + 1) * 8 * 4 * fine;
     let register = |k: usize| frames + (k * px * 10).max(refine(k));
     // Warping: the frames, the spare frame each is warped into, and the frame being warped as
-    // floats, four lanes a pixel for colour (one vector multiply-add a tap; `align`), one for
-    // grey.
-    let warp = frames + frame + 4 * px * if s.channels == 1 { 1 } else { 4 };
+    // floats in the warp's lanes (four a pixel for colour: one vector multiply-add a tap).
+    let warp = frames + frame + 4 * px * warp_lanes(s.channels);
     // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps, and
     // the luma of the frame being measured; in bands, the amplitudes of a band's rows and, while
     // each frame's are measured for the coarse level, one frame's at full size.
