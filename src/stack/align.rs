@@ -253,20 +253,19 @@ pub fn warp_frame_into<T: Sample>(
         out.same_geometry(reference),
         "output is not the reference's geometry"
     );
-    match (reference.channels, warp_lanes(reference.channels)) {
-        (1, 1) => {
-            warp_channels::<T, 1, 1>(frame, reference, warp, exposure, &mut out.data, scratch)
-        }
-        (3, 4) => {
-            warp_channels::<T, 3, 4>(frame, reference, warp, exposure, &mut out.data, scratch)
-        }
-        (n, _) => panic!("frames have 1 or 3 channels, not {n}"),
+    const GREY: usize = warp_lanes(1);
+    const COLOUR: usize = warp_lanes(3);
+    let data = &mut out.data;
+    match reference.channels {
+        1 => warp_channels::<T, 1, GREY>(frame, reference, warp, exposure, data, scratch),
+        3 => warp_channels::<T, 3, COLOUR>(frame, reference, warp, exposure, data, scratch),
+        n => panic!("frames have 1 or 3 channels, not {n}"),
     }
 }
 
 /// Float lanes a pixel the warp holds a frame in (see [`warp_channels`]): one for grey, four
 /// for colour. The memory plan counts its scratch with this.
-pub fn warp_lanes(channels: usize) -> usize {
+pub const fn warp_lanes(channels: usize) -> usize {
     if channels == 1 {
         1
     } else {
