@@ -292,10 +292,7 @@ fn seam(kappa: i32, p: usize, q: usize, lp: u8, lq: u8, diff: impl Fn(usize) -> 
 /// Σ |a − b| over a pixel's channels, each truncated to an integer.
 #[inline]
 fn color_diff<T: Sample>(a: &[T], b: &[T]) -> i32 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x.to_f32() - y.to_f32()).abs() as i32)
-        .sum()
+    a.iter().zip(b).map(|(&x, &y)| x.abs_diff_i32(y)).sum()
 }
 
 /// Energy of `labels` for an aligned stack, by the same terms the labelling minimises, at full

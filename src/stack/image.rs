@@ -13,6 +13,10 @@ pub trait Sample: Copy + Send + Sync + Default + 'static {
     fn to_f32(self) -> f32;
     /// Converts a value in sample units (0..=MAX), rounding and clamping.
     fn from_f32(v: f32) -> Self;
+    /// |self − other| in sample units, truncated to an integer: the seam cost's colour term.
+    /// Integer samples take it exactly in integers; through floats it was the labelling's
+    /// hottest line.
+    fn abs_diff_i32(self, other: Self) -> i32;
 }
 
 impl Sample for u8 {
@@ -27,6 +31,10 @@ impl Sample for u8 {
         // `round`'s libm call (baseline x86-64 has no rounding instruction).
         (v.clamp(0.0, 255.0) + 0.5) as u8
     }
+    #[inline]
+    fn abs_diff_i32(self, other: Self) -> i32 {
+        self.abs_diff(other) as i32
+    }
 }
 
 impl Sample for u16 {
@@ -39,6 +47,10 @@ impl Sample for u16 {
     fn from_f32(v: f32) -> Self {
         (v.clamp(0.0, 65535.0) + 0.5) as u16
     }
+    #[inline]
+    fn abs_diff_i32(self, other: Self) -> i32 {
+        self.abs_diff(other) as i32
+    }
 }
 
 impl Sample for f32 {
@@ -50,6 +62,10 @@ impl Sample for f32 {
     #[inline]
     fn from_f32(v: f32) -> Self {
         v
+    }
+    #[inline]
+    fn abs_diff_i32(self, other: Self) -> i32 {
+        (self - other).abs() as i32
     }
 }
 
@@ -226,5 +242,32 @@ impl Plane {
         let top = self.data[r0 + tx.lo] * (1.0 - fx) + self.data[r0 + tx.hi] * fx;
         let bot = self.data[r1 + tx.lo] * (1.0 - fx) + self.data[r1 + tx.hi] * fx;
         top * (1.0 - fy) + bot * fy
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Sample;
+
+    /// The integer seam term must equal the float one it replaced, |a − b| truncated, or the
+    /// labels (and every output) would change.
+    #[test]
+    fn integer_abs_diff_matches_the_float_definition() {
+        let float = |a: f32, b: f32| (a - b).abs() as i32;
+        for a in 0..=255u8 {
+            for b in 0..=255u8 {
+                assert_eq!(a.abs_diff_i32(b), float(a.to_f32(), b.to_f32()), "{a} {b}");
+            }
+        }
+        for (a, b) in [
+            (0u16, 65535u16),
+            (65535, 0),
+            (40000, 39999),
+            (7, 7),
+            (1, 30000),
+        ] {
+            assert_eq!(a.abs_diff_i32(b), float(a.to_f32(), b.to_f32()), "{a} {b}");
+        }
+        assert_eq!(0.25f32.abs_diff_i32(3.75), 3);
     }
 }
