@@ -1,14 +1,16 @@
 //! Pixel kernels on one 3 MP plane (2048x1536), the size of a phone frame, to track the costs
-//! that dominate a fuse apart from the graph cut; and developing one 3 MP raw frame, which a
-//! phone pays for every plane before the fuse starts.
+//! that dominate a fuse apart from the graph cut; warping one 3 MP colour frame; and developing
+//! one 3 MP raw frame, which a phone pays for every plane before the fuse starts.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use focusd::develop::raw::{unpack, Packing};
 use focusd::develop::{BayerOrder, Developer, Mosaic, IDENTITY};
+use focusd::stack::align::{warp_frame_into, Exposure};
 use focusd::stack::blur::gaussian_blur;
 use focusd::stack::focus::{focus_amplitude, FocusParams};
-use focusd::stack::image::Plane;
+use focusd::stack::image::{Image, Plane};
 use focusd::stack::pyramid::{collapse, laplacian_pyramid, levels_for};
+use focusd::stack::transform::{Affine, OffsetField, Warp};
 use std::hint::black_box;
 
 /// Deterministic texture with edges and noise, so no kernel sees a flat (cache-friendly) input.
@@ -39,6 +41,39 @@ fn bench_kernels(c: &mut Criterion) {
     });
     let pyr = laplacian_pyramid(&p, levels);
     g.bench_function("collapse", |b| b.iter(|| collapse(black_box(&pyr))));
+    // A hand-held frame's warp: a small similarity plus a local offset field (one node every
+    // 4 px, as local registration gives at its working level), bicubic, into reused buffers.
+    let frame = Image::<u8>::from_fn(w, h, 3, |x, y, c| {
+        (p.data[y * w + x] * 255.0) as u8 ^ (c as u8 * 40)
+    });
+    let centre = (w as f64 / 2.0, h as f64 / 2.0);
+    let affine = Affine::similarity(1.003, 0.004, centre, (3.3, -2.7));
+    let (cols, rows) = (w / 4 + 1, h / 4 + 1);
+    let offsets = (0..cols * rows)
+        .map(|i| ((i % 97) as f32 * 0.03).sin())
+        .map(|d| (d, -d))
+        .collect();
+    let field = Some(OffsetField {
+        step: 4.0,
+        cols,
+        rows,
+        offsets,
+    });
+    let warp = Warp { affine, field };
+    let (mut out, mut scratch) = (frame.clone(), Vec::new());
+    g.bench_function("warp_colour_field", |b| {
+        b.iter(|| {
+            let same = [Exposure::SAME; 3];
+            warp_frame_into(
+                black_box(&frame),
+                &frame,
+                &warp,
+                &same,
+                &mut out,
+                &mut scratch,
+            )
+        })
+    });
     // A MIPI RAW10 frame (the OnePlus 6's camss stores it packed) of the texture above: unpack,
     // black level, white balance, demosaic, colour matrix, sRGB to 8 bits.
     let codes: Vec<u16> = p.data.iter().map(|&v| (v * 1023.0) as u16).collect();

@@ -220,10 +220,21 @@ pub(super) fn keys(t: f32) -> [f32; 4] {
 /// the table lookup costs a fifth of computing the weights per pixel.
 const PHASES: usize = 256;
 
-fn keys_table() -> Vec<[f32; 4]> {
-    (0..=PHASES)
-        .map(|i| keys(i as f32 / PHASES as f32))
-        .collect()
+/// [`keys`] at each of the [`PHASES`] positions past a pixel.
+fn keys_table() -> [[f32; 4]; PHASES] {
+    std::array::from_fn(|i| keys(i as f32 / PHASES as f32))
+}
+
+/// A coordinate `u` ≥ 0 rounded to 1/[`PHASES`] px: the pixel at or before it and its phase
+/// past that pixel. One float-to-integer conversion gives both: as a pixel (`floor`) and a
+/// phase each, the two were a fifth of the warp's time. Where the fraction rounds up to a whole
+/// pixel this gives the next pixel at phase 0, the same taps with the same weights (0 and 1)
+/// as the pixel before at phase 1.
+#[inline]
+fn tap(u: f64) -> (usize, usize) {
+    // Saturates above u32::MAX, so at 2^24 px, beyond any frame the decoders accept.
+    let fixed = (u * PHASES as f64 + 0.5) as u32 as usize;
+    (fixed / PHASES, fixed % PHASES)
 }
 
 /// Resamples `frame` onto the reference's grid through `warp` (bicubic), undoing `exposure`;
@@ -310,7 +321,6 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
             }
         });
     let table = keys_table();
-    let phase = |f: f64| table[(f * PHASES as f64 + 0.5) as usize];
     let raster = warp.raster(w);
     let spans: Vec<(u32, u32)> = data
         .par_chunks_mut(w * C)
@@ -325,9 +335,8 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
                     continue;
                 }
                 (lo, hi) = (lo.min(x), x + 1);
-                // u, v ≥ 0 here, so truncation is `floor` without its libm call.
-                let (x0, y0) = (u as usize, v as usize);
-                let (kx, ky) = (phase(u - x0 as f64), phase(v - y0 as f64));
+                let ((x0, px), (y0, py)) = (tap(u), tap(v));
+                let (kx, ky) = (table[px], table[py]);
                 let mut acc = [0.0f32; L];
                 if x0 >= 1 && y0 >= 1 && x0 + 2 < fw && y0 + 2 < fh {
                     // Inside: the 4×4 taps are contiguous runs of rows.
@@ -372,6 +381,21 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
 mod tests {
     use super::*;
     use crate::stack::transform::Affine;
+
+    /// The pixel and phase of a coordinate; a fraction that rounds up to a whole pixel is the
+    /// next pixel at phase 0, which [`keys`] weighs as the pixel before at phase 1.
+    #[test]
+    fn tap_splits_a_coordinate_into_pixel_and_phase() {
+        assert_eq!(tap(0.0), (0, 0));
+        assert_eq!(tap(3.0), (3, 0));
+        assert_eq!(tap(2.5), (2, PHASES / 2));
+        assert_eq!(tap(7.25 + 0.4 / PHASES as f64), (7, PHASES / 4));
+        assert_eq!(tap(4.0 - 0.4 / PHASES as f64), (4, 0));
+        let (before, after) = (keys(1.0), keys(0.0));
+        assert_eq!((before[2], after[1]), (1.0, 1.0));
+        assert_eq!([before[0], before[1], before[3]], [0.0; 3]);
+        assert_eq!([after[0], after[2], after[3]], [0.0; 3]);
+    }
 
     #[test]
     fn largest_rect_of_a_tilted_footprint() {
