@@ -248,22 +248,45 @@ fn block<const LANES: usize>(src: &[f32], at: usize) -> &[f32; LANES] {
 /// edges included), straight from the interleaved samples. An output row's sums are formed
 /// together, a source row at a time, all channels' sums over a block's row in one pass.
 pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
-    match src.channels {
-        1 => downsample_channels::<T, 1>(src, factor),
-        2 => downsample_channels::<T, 2>(src, factor),
-        3 => downsample_channels::<T, 3>(src, factor),
-        4 => downsample_channels::<T, 4>(src, factor),
-        n => panic!("images have 1 to 4 channels, not {n}"),
-    }
-}
-
-/// [`downsample_area`] for `N` channels, so a block's row is summed a pixel at a time with every
-/// channel in registers: a pass per channel, striding over the others, took twice the time.
-fn downsample_channels<T: Sample, const N: usize>(src: &Image<T>, factor: usize) -> Image<T> {
     if factor <= 1 {
         return src.clone();
     }
-    let (w, h, n) = (src.width, src.height, N);
+    let (w, h, data) = (src.width, src.height, &src.data);
+    let small = match src.channels {
+        1 => downsample_channels::<T, 1>(data, w, h, factor),
+        2 => downsample_channels::<T, 2>(data, w, h, factor),
+        3 => downsample_channels::<T, 3>(data, w, h, factor),
+        4 => downsample_channels::<T, 4>(data, w, h, factor),
+        n => panic!("images have 1 to 4 channels, not {n}"),
+    };
+    Image::from_vec(w.div_ceil(factor), h.div_ceil(factor), src.channels, small)
+}
+
+/// [`downsample_area`] of one channel's `width`×`height` samples held in a slice, not an image:
+/// the focus amplitudes are downsampled where they are made, without a copy.
+pub fn downsample_samples<T: Sample>(
+    data: &[T],
+    width: usize,
+    height: usize,
+    factor: usize,
+) -> Vec<T> {
+    assert_eq!(data.len(), width * height, "not {width}x{height} samples");
+    match factor {
+        0 | 1 => data.to_vec(),
+        _ => downsample_channels::<T, 1>(data, width, height, factor),
+    }
+}
+
+/// [`downsample_area`] of `w`×`h` pixels of `N` channels (`factor` ≥ 2), so a block's row is
+/// summed a pixel at a time with every channel in registers: a pass per channel, striding over
+/// the others, took twice the time.
+fn downsample_channels<T: Sample, const N: usize>(
+    src: &[T],
+    w: usize,
+    h: usize,
+    factor: usize,
+) -> Vec<T> {
+    let n = N;
     let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
     let mut dst = vec![T::default(); cw * ch * n];
     dst.par_chunks_mut(cw * n)
@@ -274,7 +297,7 @@ fn downsample_channels<T: Sample, const N: usize>(src: &Image<T>, factor: usize)
             let mut sum = vec![0.0f32; cw * n];
             // Row by row, as the sums of f32 planes have always been formed.
             for y in y0..y1 {
-                let line = &src.data[y * w * n..(y + 1) * w * n];
+                let line = &src[y * w * n..(y + 1) * w * n];
                 for (cx, acc) in sum.chunks_exact_mut(n).enumerate() {
                     let block = &line[cx * factor * n..((cx + 1) * factor).min(w) * n];
                     let mut row = [0.0f32; N];
@@ -296,12 +319,35 @@ fn downsample_channels<T: Sample, const N: usize>(src: &Image<T>, factor: usize)
                     .for_each(|(o, s)| *o = T::from_f32(s / count));
             }
         });
-    Image::from_vec(cw, ch, n, dst)
+    dst
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A slice of u16 samples (the focus amplitudes) averages to the nearest whole unit, partial
+    /// blocks at the edges included, as the same samples held as an image do.
+    #[test]
+    fn samples_downsample_to_the_rounded_block_means() {
+        let (w, h, f) = (11, 7, 3);
+        let data: Vec<u16> = (0..w * h).map(|i| (i * 7919 % 60001) as u16).collect();
+        let small = downsample_samples(&data, w, h, f);
+        let (cw, ch) = (w.div_ceil(f), h.div_ceil(f));
+        assert_eq!(small.len(), cw * ch);
+        for (i, &got) in small.iter().enumerate() {
+            let (cx, cy) = (i % cw * f, i / cw * f);
+            let block: Vec<f64> = (cy..(cy + f).min(h))
+                .flat_map(|y| (cx..(cx + f).min(w)).map(move |x| (x, y)))
+                .map(|(x, y)| data[y * w + x] as f64)
+                .collect();
+            let mean = block.iter().sum::<f64>() / block.len() as f64;
+            assert_eq!(got, mean.round() as u16, "block {i}");
+        }
+        let image = Image::from_vec(w, h, 1, data.clone());
+        assert_eq!(downsample_area(&image, f).data, small);
+        assert_eq!(downsample_samples(&data, w, h, 1), data);
+    }
 
     #[test]
     fn blur_keeps_constant_and_mean() {

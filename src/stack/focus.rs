@@ -1,6 +1,6 @@
 //! Per-pixel focus measure: local energy of a difference of Gaussians (the paper's unary term).
 
-use super::blur::{downsample_area, gaussian_half, par_strips, PlaneRows, RowBlur, Rows};
+use super::blur::{gaussian_half, par_strips, PlaneRows, RowBlur, Rows};
 use super::image::Plane;
 use rayon::prelude::*;
 
@@ -92,16 +92,6 @@ impl Rows for DogSquared<'_, '_> {
             *f = (*f - c) * (*f - c);
         }
     }
-}
-
-/// Area-downsamples a u16 amplitude map by `factor`.
-pub fn downsample_amplitude(amp: &[u16], width: usize, height: usize, factor: usize) -> Vec<u16> {
-    let p = Plane::from_vec(width, height, 1, amp.iter().map(|&a| a as f32).collect());
-    downsample_area(&p, factor)
-        .data
-        .iter()
-        .map(|&v| v.round() as u16)
-        .collect()
 }
 
 /// Per-pixel maximum over the stack.

@@ -11,11 +11,9 @@
 //! the labels found this way have the same energy within a fraction of a percent.
 
 use super::align::Coverage;
-use super::blur::downsample_area;
+use super::blur::{downsample_area, downsample_samples};
 use super::expansion::{energy, expand, neighbours, Costs, Grid, Move};
-use super::focus::{
-    downsample_amplitude, focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE,
-};
+use super::focus::{focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE};
 use super::image::{Image, Sample};
 use super::maxflow::GridMaxflow;
 use super::{Progress, Stage};
@@ -423,7 +421,7 @@ pub fn label_stack<T: Sample>(
     for (frame, cov) in frames.iter().zip(coverage) {
         let a = amplitude_rows(frame, cov, &p.focus, 0..h);
         if f > 1 {
-            camps.push(downsample_amplitude(&a, w, h, f));
+            camps.push(downsample_samples(&a, w, h, f));
         }
         if whole {
             kept.push(a);
