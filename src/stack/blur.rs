@@ -102,12 +102,27 @@ pub(crate) trait Rows {
 }
 
 /// The rows of a plane.
+#[derive(Clone, Copy)]
 pub(crate) struct PlaneRows<'a>(pub &'a Plane);
 
 impl Rows for PlaneRows<'_> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
         let w = self.0.width;
         out.copy_from_slice(&self.0.data[y * w..y * w + w]);
+    }
+}
+
+/// The luma of an image's rows from `first` on, made as they are read: a source without a
+/// whole luma plane.
+#[derive(Clone, Copy)]
+pub(crate) struct LumaRows<'a, T> {
+    pub image: &'a Image<T>,
+    pub first: usize,
+}
+
+impl<T: Sample> Rows for LumaRows<'_, T> {
+    fn row(&mut self, y: usize, out: &mut [f32]) {
+        self.image.luma_row(self.first + y, out);
     }
 }
 

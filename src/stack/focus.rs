@@ -1,8 +1,9 @@
 //! Per-pixel focus measure: local energy of a difference of Gaussians (the paper's unary term).
 
-use super::blur::{gaussian_half, par_strips, PlaneRows, RowBlur, Rows};
-use super::image::Plane;
+use super::blur::{gaussian_half, par_strips, LumaRows, PlaneRows, RowBlur, Rows};
+use super::image::{Image, Plane, Sample};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Focus measure settings, in pixels of the frame.
 #[derive(Clone, Debug)]
@@ -39,7 +40,25 @@ pub const AMP_SCALE: f32 = 65535.0;
 /// One streaming pass: the two blurs feed DoG² rows straight into the window blur, whose rows
 /// are quantised as they come, so the only full-size buffer is the result.
 pub fn focus_amplitude(luma: &Plane, p: &FocusParams) -> Vec<u16> {
-    let (w, h) = (luma.width, luma.height);
+    amplitude(PlaneRows(luma), luma.width, luma.height, p)
+}
+
+/// [`focus_amplitude`] of the luma of `frame`'s rows `rows`, each luma row made as the blurs
+/// read it: a whole float luma plane a frame was a tenth of a fuse's freshly faulted memory.
+pub fn frame_focus_amplitude<T: Sample>(
+    frame: &Image<T>,
+    rows: Range<usize>,
+    p: &FocusParams,
+) -> Vec<u16> {
+    let source = LumaRows {
+        image: frame,
+        first: rows.start,
+    };
+    amplitude(source, frame.width, rows.len(), p)
+}
+
+/// [`focus_amplitude`] of the `w`×`h` rows of `src`.
+fn amplitude<S: Rows + Copy + Sync>(src: S, w: usize, h: usize, p: &FocusParams) -> Vec<u16> {
     let (fine, coarse, window) = (
         gaussian_half(p.sigma_fine),
         gaussian_half(p.sigma_coarse),
@@ -48,8 +67,8 @@ pub fn focus_amplitude(luma: &Plane, p: &FocusParams) -> Vec<u16> {
     let mut amp = vec![0u16; w * h];
     par_strips(&mut amp, w, h, |y0, strip| {
         let dog = DogSquared {
-            fine: RowBlur::new(PlaneRows(luma), w, h, &fine),
-            coarse: RowBlur::new(PlaneRows(luma), w, h, &coarse),
+            fine: RowBlur::new(src, w, h, &fine),
+            coarse: RowBlur::new(src, w, h, &coarse),
             tmp: vec![0.0; w],
         };
         let mut energy = RowBlur::new(dog, w, h, &window);
@@ -77,14 +96,14 @@ fn quantise(v: f32) -> u16 {
     ((r.to_bits() & 0x7f_ffff) + tie_down) as u16
 }
 
-/// Rows of the squared difference of two blurs of the same plane.
-struct DogSquared<'k, 'a> {
-    fine: RowBlur<'k, PlaneRows<'a>>,
-    coarse: RowBlur<'k, PlaneRows<'a>>,
+/// Rows of the squared difference of two blurs of the same source.
+struct DogSquared<'k, S> {
+    fine: RowBlur<'k, S>,
+    coarse: RowBlur<'k, S>,
     tmp: Vec<f32>,
 }
 
-impl Rows for DogSquared<'_, '_> {
+impl<S: Rows> Rows for DogSquared<'_, S> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
         self.fine.row(y, out);
         self.coarse.row(y, &mut self.tmp);
@@ -136,6 +155,22 @@ mod tests {
             v += 0.75;
         }
         assert_eq!(quantise(f32::INFINITY), 65535);
+    }
+
+    /// A frame's rows measured straight from its samples give the amplitudes of its luma
+    /// plane's rows, to the bit, in colour and grey.
+    #[test]
+    fn frame_rows_measure_as_their_luma_plane() {
+        let p = FocusParams::default();
+        let colour =
+            Image::<u8>::from_fn(57, 90, 3, |x, y, c| ((x * 7 + y * y + c * 50) % 251) as u8);
+        let grey = Image::<u16>::from_fn(40, 33, 1, |x, y, _| ((x * y * 977) % 65521) as u16);
+        for rows in [0..90, 20..61, 89..90] {
+            let plane = focus_amplitude(&colour.luma_rows(rows.clone()), &p);
+            assert_eq!(frame_focus_amplitude(&colour, rows, &p), plane);
+        }
+        let plane = focus_amplitude(&grey.luma(), &p);
+        assert_eq!(frame_focus_amplitude(&grey, 0..33, &p), plane);
     }
 
     #[test]

@@ -13,7 +13,7 @@
 use super::align::Coverage;
 use super::blur::{downsample_area, downsample_samples};
 use super::expansion::{energy, expand, neighbours, Costs, Grid, Move};
-use super::focus::{focus_amplitude, focus_reach, max_amplitude, FocusParams, AMP_SCALE};
+use super::focus::{focus_reach, frame_focus_amplitude, max_amplitude, FocusParams, AMP_SCALE};
 use super::image::{Image, Sample};
 use super::maxflow::GridMaxflow;
 use super::{Progress, Stage};
@@ -127,7 +127,7 @@ fn amplitude_rows<T: Sample>(
     let (w, h) = (frame.width, frame.height);
     let reach = focus_reach(p);
     let ext = rows.start.saturating_sub(reach)..(rows.end + reach).min(h);
-    let mut a = focus_amplitude(&frame.luma_rows(ext.clone()), p);
+    let mut a = frame_focus_amplitude(frame, ext.clone(), p);
     a.drain(..(rows.start - ext.start) * w);
     a.truncate(rows.len() * w);
     a.par_chunks_mut(w)

@@ -139,17 +139,34 @@ impl<T: Sample> Image<T> {
 
     /// The luma of rows `rows` only, as a plane of that many rows.
     pub fn luma_rows(&self, rows: std::ops::Range<usize>) -> Plane {
+        let w = self.width;
+        let mut data = vec![0.0; w * rows.len()];
+        if w > 0 {
+            for (out, y) in data.chunks_exact_mut(w).zip(rows.clone()) {
+                self.luma_row(y, out);
+            }
+        }
+        Plane::from_vec(w, rows.len(), 1, data)
+    }
+
+    /// The luma of row `y` into `out`, `width` values: for a pass that streams rows and needs
+    /// no luma plane.
+    pub fn luma_row(&self, y: usize, out: &mut [f32]) {
         let scale = 1.0 / T::MAX;
         let n = self.width * self.channels;
-        let samples = &self.data[rows.start * n..rows.end * n];
-        let data = match self.channels {
-            1 => samples.iter().map(|v| v.to_f32() * scale).collect(),
-            _ => samples
-                .chunks_exact(self.channels)
-                .map(|p| luma_of(p[0].to_f32(), p[1].to_f32(), p[2].to_f32()) * scale)
-                .collect(),
-        };
-        Plane::from_vec(self.width, rows.len(), 1, data)
+        let samples = &self.data[y * n..(y + 1) * n];
+        match self.channels {
+            1 => out
+                .iter_mut()
+                .zip(samples)
+                .for_each(|(o, v)| *o = v.to_f32() * scale),
+            _ => out
+                .iter_mut()
+                .zip(samples.chunks_exact(self.channels))
+                .for_each(|(o, p)| {
+                    *o = luma_of(p[0].to_f32(), p[1].to_f32(), p[2].to_f32()) * scale
+                }),
+        }
     }
 
     /// Splits into f32 planes normalised to 0..=1, one per channel.

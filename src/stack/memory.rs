@@ -98,14 +98,15 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     // Warping: the frames, the spare frame each is warped into, and the frame being warped as
     // floats in the warp's lanes (four a pixel for colour: one vector multiply-add a tap).
     let warp = frames + frame + 4 * px * warp_lanes(s.channels);
-    // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps, and
-    // the luma of the frame being measured; in bands, the amplitudes of a band's rows and, while
-    // each frame's are measured for the coarse level, one frame's at full size.
+    // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps (a
+    // frame's luma is made a row at a time as its amplitudes are measured); in bands, the
+    // amplitudes of a band's rows and, while each frame's are measured for the coarse level,
+    // one frame's at full size.
     let maps = 5 * px;
-    let labels_whole = frames + maps + (s.frames + 1) * 2 * px + 4 * px;
+    let labels_whole = frames + maps + (s.frames + 1) * 2 * px;
     let labels_banded = |rows: usize| {
-        let band = (s.frames + 1) * 2 * (rows + 2) * s.width + 4 * (rows + 40) * s.width;
-        frames + maps + band.max(10 * px)
+        let band = (s.frames + 1) * 2 * (rows + 2) * s.width;
+        frames + maps + band.max(2 * px)
     };
     let graphcut = p.method == Method::GraphCut;
     let label_rows = if !graphcut || labels_whole <= room {
