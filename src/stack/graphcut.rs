@@ -706,7 +706,7 @@ fn moves<T: Sample>(
 ) -> Option<Vec<Move>> {
     let (w, h) = (local.width, local.height);
     let mut pixels: Vec<Vec<u32>> = vec![Vec::new(); 256];
-    let (mut top, mut offer) = (Vec::new(), Vec::new());
+    let mut top = Vec::new();
     let mut any_free = false;
     for y in 0..h {
         for x in 0..w {
@@ -716,14 +716,18 @@ fn moves<T: Sample>(
             }
             any_free = true;
             level.sharpest((y0 + y) * width + x0 + x, k, &mut top);
-            offer.clear();
-            offer.extend_from_slice(&top);
-            offer.push(local.labels[p]);
-            offer.extend(neighbours(w, h, p).map(|q| local.labels[q]));
-            offer.sort_unstable();
-            offer.dedup();
-            for &l in &offer {
-                pixels[l as usize].push(p as u32);
+            // The labels offered, as a set of 256 bits: sorting and deduplicating a list of
+            // them was a tenth of this function's time.
+            let mut offer = [0u64; 4];
+            let own = neighbours(w, h, p).chain([p]).map(|q| local.labels[q]);
+            for l in top.iter().copied().chain(own) {
+                offer[l as usize / 64] |= 1 << (l % 64);
+            }
+            for (word, mut bits) in offer.into_iter().enumerate() {
+                while bits != 0 {
+                    pixels[word * 64 + bits.trailing_zeros() as usize].push(p as u32);
+                    bits &= bits - 1;
+                }
             }
         }
     }
