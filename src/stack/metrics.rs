@@ -7,8 +7,8 @@ use rayon::prelude::*;
 /// Tenengrad sharpness (the paper's metric): mean Sobel gradient magnitude of luma, in 8-bit units.
 ///
 /// Luma is made a band of rows at a time (with a row above and below), not for the whole image:
-/// the CLI reports every input frame's sharpness, and a whole float plane a frame was a fifth
-/// of a fuse's freshly faulted (zeroed) memory.
+/// the CLI reports every input frame's sharpness, and a whole float plane a frame was 8 % of an
+/// amber_macro fuse's freshly faulted (zeroed) pages.
 pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
     const BAND: usize = 64;
     let (w, h) = (img.width, img.height);
@@ -16,9 +16,8 @@ pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
         return 0.0;
     }
     let sum: f64 = (1..h - 1)
-        .step_by(BAND)
-        .collect::<Vec<_>>()
         .into_par_iter()
+        .step_by(BAND)
         .map(|y0| {
             let y1 = (y0 + BAND).min(h - 1);
             gradient_sum(&img.luma_rows(y0 - 1..y1 + 1))
