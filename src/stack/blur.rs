@@ -263,9 +263,6 @@ fn block<const LANES: usize>(src: &[f32], at: usize) -> &[f32; LANES] {
 /// edges included), straight from the interleaved samples. An output row's sums are formed
 /// together, a source row at a time, all channels' sums over a block's row in one pass.
 pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
-    if factor <= 1 {
-        return src.clone();
-    }
     let (w, h, data) = (src.width, src.height, &src.data);
     let small = match src.channels {
         1 => downsample_channels::<T, 1>(data, w, h, factor),
@@ -274,7 +271,8 @@ pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
         4 => downsample_channels::<T, 4>(data, w, h, factor),
         n => panic!("images have 1 to 4 channels, not {n}"),
     };
-    Image::from_vec(w.div_ceil(factor), h.div_ceil(factor), src.channels, small)
+    let f = factor.max(1);
+    Image::from_vec(w.div_ceil(f), h.div_ceil(f), src.channels, small)
 }
 
 /// [`downsample_area`] of one channel's `width`×`height` samples held in a slice, not an image:
@@ -286,21 +284,21 @@ pub fn downsample_samples<T: Sample>(
     factor: usize,
 ) -> Vec<T> {
     assert_eq!(data.len(), width * height, "not {width}x{height} samples");
-    match factor {
-        0 | 1 => data.to_vec(),
-        _ => downsample_channels::<T, 1>(data, width, height, factor),
-    }
+    downsample_channels::<T, 1>(data, width, height, factor)
 }
 
-/// [`downsample_area`] of `w`×`h` pixels of `N` channels (`factor` ≥ 2), so a block's row is
-/// summed a pixel at a time with every channel in registers: a pass per channel, striding over
-/// the others, took twice the time.
+/// [`downsample_area`] of `w`×`h` pixels of `N` channels (a copy for `factor` 0 or 1), so a
+/// block's row is summed a pixel at a time with every channel in registers: a pass per channel,
+/// striding over the others, took twice the time.
 fn downsample_channels<T: Sample, const N: usize>(
     src: &[T],
     w: usize,
     h: usize,
     factor: usize,
 ) -> Vec<T> {
+    if factor <= 1 {
+        return src.to_vec();
+    }
     let n = N;
     let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
     let mut dst = vec![T::default(); cw * ch * n];
