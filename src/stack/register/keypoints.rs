@@ -123,19 +123,25 @@ fn extrema(d: &[Plane], threshold: f32, o: usize, s: usize) -> Vec<Keypoint> {
         .collect()
 }
 
+/// Whether `v` at (x, y) of the middle layer is the largest or the smallest of its 3×3×3
+/// neighbourhood (ties count). Most pixels above the threshold are neither, and show it within
+/// a row or two, so each row of three stops the search once it is settled; the middle layer,
+/// which rules out most, is read first.
 fn is_extremum(d: &[Plane], x: usize, y: usize, v: f32) -> bool {
     let w = d[1].width;
-    let mut max = true;
-    let mut min = true;
-    for layer in d {
+    let (mut max, mut min) = (true, true);
+    for layer in [&d[1], &d[0], &d[2]] {
         for yy in y - 1..=y + 1 {
             for &n in &layer.data[yy * w + x - 1..=yy * w + x + 1] {
                 max &= v >= n;
                 min &= v <= n;
             }
+            if !(max || min) {
+                return false;
+            }
         }
     }
-    max || min
+    true
 }
 
 /// Quadratic fit of the DoG around (x, y, middle layer): the sub-pixel offset and value, or None
