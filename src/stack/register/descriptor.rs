@@ -2,7 +2,7 @@
 //! window scaled with the keypoint's blob scale so focus breathing does not change it.
 
 use super::keypoints::{Keypoint, ScaleSpace};
-use crate::stack::image::Plane;
+use crate::stack::image::{Plane, Tap};
 use rayon::prelude::*;
 
 /// Cells per side and orientation bins per cell: 128 values, Lowe's layout.
@@ -35,11 +35,16 @@ fn one(p: &Plane, x: f32, y: f32, sigma: f32) -> [f32; LEN] {
     let step = CELL_SIGMAS * sigma / SAMPLES as f32;
     // Intensities on the grid plus a one-sample ring, so gradients are grid differences.
     let half = (GRID + 1) as f32 / 2.0;
+    // The grid is upright: a column's taps are the same on every row, and a row's in every
+    // column, so each is found once rather than per sample.
+    let taps = |c: f32, n: usize| -> [Tap; GRID + 2] {
+        std::array::from_fn(|i| Tap::new(c + (i as f32 - half) * step, n))
+    };
+    let (cols, rows) = (taps(x, p.width), taps(y, p.height));
     let mut g = [[0.0f32; GRID + 2]; GRID + 2];
-    for (j, row) in g.iter_mut().enumerate() {
-        let sy = y + (j as f32 - half) * step;
-        for (i, v) in row.iter_mut().enumerate() {
-            *v = p.sample_bilinear(x + (i as f32 - half) * step, sy);
+    for (row, &ty) in g.iter_mut().zip(&rows) {
+        for (v, &tx) in row.iter_mut().zip(&cols) {
+            *v = p.sample_taps(tx, ty);
         }
     }
     // Gaussian weight over the window, sigma half the window width (Lowe's); separable.
