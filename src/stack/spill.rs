@@ -287,56 +287,30 @@ fn region_masks(depth: &[u8], w: usize, h: usize, n: usize, factor: usize) -> Ve
         .collect()
 }
 
-/// The smallest value of `map` within `r` pixels (a square window): van Herk's running minimum
-/// along rows, then along the columns of the transposed map, a few operations a pixel whatever
-/// `r`.
+/// The smallest value of `map` within `r` pixels (a square window, truncated at the borders).
+/// Separable: along each row the minimum of its 2r+1 shifts, then down the columns the
+/// minimum of each row's 2r+1 neighbours, every step a minimum of two whole rows, which the
+/// compiler vectorises (32 pixels an instruction). At r = 8 that is about a pixel an
+/// instruction; van Herk's running minima, a division and two branches a pixel and transposes
+/// between, took 0.16 s of CPU on a 3 × 5.5 MP stack.
 fn window_min(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
-    let rows = min_along_rows(map, w, r);
-    let cols = min_along_rows(&transpose(&rows, w, h), h, r);
-    transpose(&cols, h, w)
-}
-
-fn min_along_rows(map: &[u8], w: usize, r: usize) -> Vec<u8> {
-    let k = 2 * r + 1;
-    let len = w + 2 * r;
-    // Written in place, with each thread's two running minima reused from row to row: collected
-    // from per-row iterators, the map was gathered in pieces and copied together again.
-    let mut out = vec![0u8; map.len()];
-    out.par_chunks_mut(w).zip(map.par_chunks(w)).for_each_init(
-        || (vec![0u8; len], vec![0u8; len]),
-        |(ahead, behind), (out, row)| {
-            let at = |i: usize| match i.checked_sub(r) {
-                Some(j) if j < w => row[j],
-                _ => u8::MAX,
-            };
-            // Minimum from the start of each block of k to i, and from i to the block's end.
-            for i in 0..len {
-                ahead[i] = if i % k == 0 {
-                    at(i)
-                } else {
-                    ahead[i - 1].min(at(i))
-                };
+    let into_min = |out: &mut [u8], src: &[u8]| {
+        out.iter_mut().zip(src).for_each(|(o, &v)| *o = (*o).min(v));
+    };
+    let mut rows = map.to_vec();
+    rows.par_chunks_mut(w)
+        .zip(map.par_chunks(w))
+        .for_each(|(out, row)| {
+            for o in 1..=r.min(w - 1) {
+                into_min(&mut out[..w - o], &row[o..]);
+                into_min(&mut out[o..], &row[..w - o]);
             }
-            for i in (0..len).rev() {
-                behind[i] = if i + 1 == len || (i + 1) % k == 0 {
-                    at(i)
-                } else {
-                    behind[i + 1].min(at(i))
-                };
-            }
-            for (x, o) in out.iter_mut().enumerate() {
-                *o = behind[x].min(ahead[x + 2 * r]);
-            }
-        },
-    );
-    out
-}
-
-fn transpose(map: &[u8], w: usize, h: usize) -> Vec<u8> {
-    let mut out = vec![0u8; w * h];
-    out.par_chunks_mut(h).enumerate().for_each(|(x, col)| {
-        for (y, v) in col.iter_mut().enumerate() {
-            *v = map[y * w + x];
+        });
+    let mut out = rows.clone();
+    out.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
+        let near = y.saturating_sub(r)..=(y + r).min(h - 1);
+        for yy in near.filter(|&yy| yy != y) {
+            into_min(out, &rows[yy * w..][..w]);
         }
     });
     out
@@ -1108,7 +1082,13 @@ mod tests {
 
     #[test]
     fn the_window_minimum_is_the_minimum_over_the_window() {
-        let (w, h, r) = (23, 17, 3);
+        // Windows narrower than the map and wider than it either way.
+        for (w, h, r) in [(23, 17, 3), (23, 17, 0), (5, 17, 8), (23, 4, 8)] {
+            check_window_min(w, h, r);
+        }
+    }
+
+    fn check_window_min(w: usize, h: usize, r: usize) {
         let map: Vec<u8> = (0..w * h).map(|i| ((i * 37 + i / 5) % 251) as u8).collect();
         let fast = window_min(&map, w, h, r);
         for y in 0..h {
