@@ -13,7 +13,6 @@ use focusd::stack::register::{
 };
 use focusd::stack::transform::{Affine, Transforms, Warp};
 use focusd::stack::{NoProgress, Progress, Stage};
-use std::borrow::Cow;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -211,8 +210,7 @@ impl Progress for Steps {
 #[test]
 fn registration_reports_each_frame_of_each_phase_and_stops_when_cancelled() {
     let (lumas, t) = handheld();
-    let (n, size) = (lumas.len(), (t.size[0], t.size[1]));
-    let luma = |i: usize| Cow::Borrowed(&lumas[i]);
+    let n = lumas.len();
     let p = RegisterParams::default();
     assert!(p.local && p.refine_levels > 0);
     let all = Steps {
@@ -220,7 +218,7 @@ fn registration_reports_each_frame_of_each_phase_and_stops_when_cancelled() {
         done: AtomicUsize::new(0),
         cancel_after: usize::MAX,
     };
-    register_with(n, size, luma, t.reference, &p, 0, &all).unwrap();
+    register_with(&lumas, t.reference, &p, 0, &all).unwrap();
     // Prepare, match, refine and the local field; the reference's local step is not one.
     let steps = all.done.load(Ordering::SeqCst);
     assert_eq!(
@@ -233,7 +231,7 @@ fn registration_reports_each_frame_of_each_phase_and_stops_when_cancelled() {
         done: AtomicUsize::new(0),
         cancel_after: 2 * n,
     };
-    let err = register_with(n, size, luma, t.reference, &p, 0, &cancelled).unwrap_err();
+    let err = register_with(&lumas, t.reference, &p, 0, &cancelled).unwrap_err();
     assert_eq!(err, RegisterError::Cancelled);
     // Stopped at the first check after the cancel; parallel steps already started may finish.
     assert!(cancelled.done.load(Ordering::SeqCst) < 3 * n);

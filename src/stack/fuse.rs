@@ -12,7 +12,6 @@ use super::spill::{unmix, Unmixed};
 use super::transform::Warp;
 use super::{Progress, Stage};
 use rayon::prelude::*;
-use std::borrow::Cow;
 use std::time::{Duration, Instant};
 
 /// Why a stack cannot be fused; `frame` indices are 0-based positions in the input.
@@ -126,22 +125,13 @@ pub fn fuse<T: Sample>(
     let plan = memory::plan(&stack_of(&frames), params);
     let alignment = match &params.align {
         Some(p) => {
-            let size = (frames[0].width, frames[0].height);
-            let luma = |i: usize| Cow::Owned(frames[i].luma());
-            let n = frames.len();
-            let registration = register_with(
-                n,
-                size,
-                luma,
-                reference,
-                p,
-                plan.concurrent_frames,
-                progress,
-            )
-            .map_err(|e| match e {
-                RegisterError::Cancelled => FuseError::Cancelled,
-                e => FuseError::Register(e),
-            })?;
+            let registration =
+                register_with(&frames, reference, p, plan.concurrent_frames, progress).map_err(
+                    |e| match e {
+                        RegisterError::Cancelled => FuseError::Cancelled,
+                        e => FuseError::Register(e),
+                    },
+                )?;
             lap(Stage::Register, &mut timings);
             go_on(progress)?;
             let a = align(&mut frames, registration, reference, progress);

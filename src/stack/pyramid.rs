@@ -15,31 +15,52 @@ pub fn levels_for(width: usize, height: usize) -> usize {
     n
 }
 
-/// Blurs and halves a plane.
+/// What [`reduce`] reads a row at a time: a plane's own rows, or rows a source makes on
+/// demand (a frame's luma, see `register`), so the source need not be a plane at all. Unlike
+/// `blur`'s row streams, a plane's rows are lent, not copied: compose reduces planes a lot.
+pub trait RowSource: Sync {
+    /// Width and height.
+    fn size(&self) -> (usize, usize);
+    /// Row `y`: borrowed, or made in `buf` (as wide as the rows) and returned.
+    fn row<'a>(&'a self, y: usize, buf: &'a mut [f32]) -> &'a [f32];
+}
+
+impl RowSource for Plane {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn row<'a>(&'a self, y: usize, _: &'a mut [f32]) -> &'a [f32] {
+        &self.data[y * self.width..][..self.width]
+    }
+}
+
+/// Blurs and halves a plane (or any [`RowSource`]).
 ///
 /// Streams like the blur: each strip keeps the five horizontally reduced rows its output rows
 /// need in a ring, so there is no half-width intermediate plane.
-pub fn reduce(p: &Plane) -> Plane {
-    let (nw, nh) = (p.width.div_ceil(2), p.height.div_ceil(2));
+pub fn reduce(p: &impl RowSource) -> Plane {
+    let (w, h) = p.size();
+    let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
     let mut out = vec![0.0f32; nw * nh];
     reduce_into(p, &mut out);
     Plane::from_vec(nw, nh, 1, out)
 }
 
 /// `reduce` into an existing buffer of the halved size.
-fn reduce_into(p: &Plane, out: &mut [f32]) {
-    let (w, h) = (p.width, p.height);
+fn reduce_into(p: &impl RowSource, out: &mut [f32]) {
+    let (w, h) = p.size();
     let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
     assert_eq!(out.len(), nw * nh, "reduced buffer size");
     par_strips(out, nw, nh, |i0, strip| {
         // Source row s, reduced along x, lives in slot s % 5.
         let mut ring = vec![0.0f32; 5 * nw];
-        let (mut even, mut odd) = (Vec::new(), Vec::new());
+        let (mut even, mut odd, mut buf) = (Vec::new(), Vec::new(), vec![0.0f32; w]);
         let mut next = (2 * i0).saturating_sub(2);
         for (i, out) in (i0..).zip(strip.chunks_exact_mut(nw)) {
             while next <= (2 * i + 2).min(h - 1) {
                 let dst = &mut ring[next % 5 * nw..][..nw];
-                reduce_row(&p.data[next * w..][..w], dst, &mut even, &mut odd);
+                reduce_row(p.row(next, &mut buf), dst, &mut even, &mut odd);
                 next += 1;
             }
             let row = |s: usize| &ring[s.min(h - 1) % 5 * nw..][..nw];

@@ -1,7 +1,7 @@
 //! The Gaussian pyramid levels registration works on, each knowing its scale.
 
-use crate::stack::image::Plane;
-use crate::stack::pyramid::reduce;
+use crate::stack::image::{Image, Plane, Sample};
+use crate::stack::pyramid::{reduce, RowSource};
 use crate::stack::transform::Affine;
 
 /// Levels `first..first + planes.len()` of a Burt–Adelson pyramid: pixel (x, y) of level k sits
@@ -11,22 +11,44 @@ pub struct Levels {
     pub planes: Vec<Plane>,
 }
 
+/// A frame's luma as rows made as the first reduction reads them: a frame being registered
+/// then holds no full-resolution luma plane (12 MB at 3 MP) unless level 0 itself is wanted.
+pub struct Luma<'a, T>(pub &'a Image<T>);
+
+impl<T: Sample> RowSource for Luma<'_, T> {
+    fn size(&self) -> (usize, usize) {
+        (self.0.width, self.0.height)
+    }
+
+    fn row<'b>(&'b self, y: usize, buf: &'b mut [f32]) -> &'b [f32] {
+        self.0.luma_row(y, buf);
+        buf
+    }
+}
+
 impl Levels {
     /// Levels `first..=last` of `full`'s pyramid, stopping early if a level gets tiny.
-    pub fn build(full: &Plane, first: usize, last: usize) -> Levels {
+    pub fn build(full: &impl RowSource, first: usize, last: usize) -> Levels {
+        let (w, h) = full.size();
         let mut planes = Vec::with_capacity(last + 1 - first);
         if first == 0 {
-            planes.push(full.clone());
+            let (mut buf, mut data) = (vec![0.0f32; w], Vec::with_capacity(w * h));
+            for y in 0..h {
+                data.extend_from_slice(full.row(y, &mut buf));
+            }
+            planes.push(Plane::from_vec(w, h, 1, data));
         }
-        // Level k is reduced from level k − 1 without copying the full-resolution plane, which
-        // is most of the memory of a frame being registered.
+        // Level k is reduced from level k − 1; level 1 straight from the source's rows.
         let mut cur: Option<Plane> = None;
         for k in 1..=last {
-            let src = cur.as_ref().unwrap_or(full);
-            if src.width.min(src.height) < 16 {
+            let size = cur.as_ref().map_or((w, h), |p| (p.width, p.height));
+            if size.0.min(size.1) < 16 {
                 break;
             }
-            let next = reduce(src);
+            let next = match &cur {
+                Some(p) => reduce(p),
+                None => reduce(full),
+            };
             if k >= first {
                 planes.push(next.clone());
             }

@@ -26,7 +26,7 @@ mod matching;
 pub(crate) mod ransac;
 mod refine;
 
-use super::image::Plane;
+use super::image::{Image, Plane, Sample};
 use super::transform::{Affine, OffsetField};
 use super::{NoProgress, Progress, Stage};
 use levels::{level_within, Levels};
@@ -34,7 +34,6 @@ use matching::Features;
 use ransac::{Fit, Pair};
 use rayon::prelude::*;
 use refine::Template;
-use std::borrow::Cow;
 
 /// Tuning of [`register`]; the defaults were tuned on 0.2–3 MP synthetic hand-held stacks.
 #[derive(Clone, Debug, PartialEq)]
@@ -194,36 +193,27 @@ pub fn register(
     reference: usize,
     p: &RegisterParams,
 ) -> Result<Registration, RegisterError> {
-    let size = lumas.get(reference).map_or((0, 0), |r| (r.width, r.height));
-    register_with(
-        lumas.len(),
-        size,
-        |i| Cow::Borrowed(&lumas[i]),
-        reference,
-        p,
-        0,
-        &NoProgress,
-    )
+    register_with(lumas, reference, p, 0, &NoProgress)
 }
 
-/// [`register`] with each frame's luma made on demand by `luma(i)` (`size` = width, height)
-/// and dropped once its pyramid levels are built, so a stack's full-resolution lumas are never
-/// all in memory (10 × 3 MP: 120 MB). `concurrent_frames` frames are prepared at once, each
-/// with its full-resolution luma in memory (4 bytes a pixel); 0: one per thread. A memory
-/// budget lowers it (see `stack::memory`).
+/// [`register`] of frames of any sample type and channels (one size), each frame's luma made a
+/// row at a time as its pyramid is reduced ([`levels::Luma`]), so no full-resolution luma
+/// plane is made (10 × 3 MP: 120 MB, and a tenth of a fuse's page faults).
+/// `concurrent_frames` frames are prepared at once, each with its levels and keypoint scale
+/// space in memory (about 6 bytes a pixel); 0: one per thread. A memory budget lowers it (see
+/// `stack::memory`).
 ///
 /// Reports one step per frame and phase (prepare, match, refine, local field) as stage
 /// `Register`, and stops between steps when `progress` is cancelled: on a slow core a stack's
 /// registration takes long enough that a watchdog must see it move and a cancel must not wait.
-pub fn register_with<'a>(
-    n: usize,
-    size: (usize, usize),
-    luma: impl Fn(usize) -> Cow<'a, Plane> + Sync,
+pub fn register_with<T: Sample>(
+    frames: &[Image<T>],
     reference: usize,
     p: &RegisterParams,
     concurrent_frames: usize,
     progress: &dyn Progress,
 ) -> Result<Registration, RegisterError> {
+    let n = frames.len();
     if reference >= n {
         return Err(match n {
             0 => RegisterError::NoFrames,
@@ -233,6 +223,7 @@ pub fn register_with<'a>(
             },
         });
     }
+    let size = (frames[reference].width, frames[reference].height);
     let (w, h) = size;
     let det = level_within(w, h, p.detect_pixels);
     // Never full size: the defocus equalisation's blurs (up to 5.7 level pixels) fall short of
@@ -248,17 +239,17 @@ pub fn register_with<'a>(
         k => k,
     };
     let prepare = |i: usize| {
-        let l = luma(i);
-        if (l.width, l.height) != (w, h) {
+        let f = &frames[i];
+        if (f.width, f.height) != (w, h) {
             return Err(RegisterError::Size {
                 frame: i,
-                width: l.width,
-                height: l.height,
+                width: f.width,
+                height: f.height,
                 ref_width: w,
                 ref_height: h,
             });
         }
-        let levels = Levels::build(&l, first, det.max(coarse));
+        let levels = Levels::build(&levels::Luma(f), first, det.max(coarse));
         let features = features(levels.get(det.min(levels.last())), det, p);
         Ok(Prepared { levels, features })
     };
