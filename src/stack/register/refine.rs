@@ -253,40 +253,36 @@ impl Coords {
         map: impl Fn(f64, f64) -> (f64, f64) + Sync,
     ) -> Coords {
         let (iw, ih) = (frame.width as f32 - 1.0, frame.height as f32 - 1.0);
-        let rows: Vec<(Vec<u32>, Vec<f32>, Vec<f32>)> = (0..th)
-            .into_par_iter()
-            .map(|y| {
-                let mut idx = vec![u32::MAX; tw];
-                let (mut fx, mut fy) = (vec![0.0f32; tw], vec![0.0f32; tw]);
-                if y == 0 || y + 1 == th || y % stride != 0 {
-                    return (idx, fx, fy);
-                }
-                for x in (stride..tw - 1).step_by(stride) {
-                    let (u, v) = map(x as f64, y as f64);
-                    let (u, v) = (u as f32, v as f32);
-                    if u >= 0.0 && v >= 0.0 && u < iw && v < ih {
-                        let (x0, y0) = (u.floor(), v.floor());
-                        idx[x] = (y0 as usize * frame.width + x0 as usize) as u32;
-                        fx[x] = u - x0;
-                        fy[x] = v - y0;
-                    }
-                }
-                (idx, fx, fy)
-            })
-            .collect();
+        let n = tw * th;
         let mut cs = Coords {
-            idx: Vec::with_capacity(tw * th),
-            fx: Vec::with_capacity(tw * th),
-            fy: Vec::with_capacity(tw * th),
+            idx: vec![u32::MAX; n],
+            fx: vec![0.0; n],
+            fy: vec![0.0; n],
             stride: frame.width,
             width: tw,
             height: th,
         };
-        for (i, x, y) in rows {
-            cs.idx.extend(i);
-            cs.fx.extend(x);
-            cs.fy.extend(y);
-        }
+        // Each row written in place: rows made apart and joined were copied twice over.
+        cs.idx
+            .par_chunks_mut(tw.max(1))
+            .zip(cs.fx.par_chunks_mut(tw.max(1)))
+            .zip(cs.fy.par_chunks_mut(tw.max(1)))
+            .enumerate()
+            .filter(|&(y, _)| y != 0 && y + 1 != th && y % stride == 0)
+            .for_each(|(y, ((idx, fx), fy))| {
+                for x in (stride..tw - 1).step_by(stride) {
+                    let (u, v) = map(x as f64, y as f64);
+                    let (u, v) = (u as f32, v as f32);
+                    if u >= 0.0 && v >= 0.0 && u < iw && v < ih {
+                        // Truncation floors a non-negative coordinate, without `floor`'s
+                        // library call (baseline x86-64 has no rounding instruction).
+                        let (x0, y0) = (u as usize, v as usize);
+                        idx[x] = (y0 * frame.width + x0) as u32;
+                        fx[x] = u - x0 as f32;
+                        fy[x] = v - y0 as f32;
+                    }
+                }
+            });
         cs
     }
 
