@@ -91,3 +91,25 @@ pub fn from_level(a: &Affine, k: usize) -> Affine {
     let [[p, q, c], [r, t, f]] = a.0;
     Affine([[p, q, c * s], [r, t, f * s]])
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn levels_of_a_frames_streamed_luma_are_those_of_its_luma_plane() {
+        let mut frame = Image::<u8>::new(70, 45, 3);
+        for (i, v) in frame.data.iter_mut().enumerate() {
+            *v = ((i * 37 + i / 211) % 256) as u8;
+        }
+        let plane = frame.luma();
+        for first in [0, 1, 2] {
+            let (a, b) = (
+                Levels::build(&Luma(&frame), first, 3),
+                Levels::build(&plane, first, 3),
+            );
+            assert_eq!((a.first, a.last()), (b.first, b.last()));
+            assert!(a.planes.iter().zip(&b.planes).all(|(a, b)| a == b));
+        }
+    }
+}

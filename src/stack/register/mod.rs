@@ -198,7 +198,8 @@ pub fn register(
 
 /// [`register`] of frames of any sample type and channels (one size), each frame's luma made a
 /// row at a time as its pyramid is reduced ([`levels::Luma`]), so no full-resolution luma
-/// plane is made (10 × 3 MP: 120 MB, and a tenth of a fuse's page faults).
+/// plane is made (12 MB a frame at 3 MP; about a tenth of amber_macro's page faults were
+/// theirs).
 /// `concurrent_frames` frames are prepared at once, each with its levels and keypoint scale
 /// space in memory (about 6 bytes a pixel); 0: one per thread. A memory budget lowers it (see
 /// `stack::memory`).
