@@ -10,6 +10,7 @@
 use super::align::warp_lanes;
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
 use super::params::{FuseParams, Method};
+use super::register::finest_level;
 use super::spill;
 use std::fmt;
 
@@ -89,16 +90,16 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     let room = budget.saturating_sub(RUNTIME);
     // Each frame being prepared: its reduced levels and keypoint scale space (measured at
     // 3 MP: 9.3 bytes a pixel with the full-resolution luma plane registration made then, 4
-    // of them; its luma now streams into the first reduction), plus level 0 itself where a
-    // level that fine is used (frames within `detect_pixels` or, local registration on,
-    // `local_pixels`). Then, refining, every frame's levels from the finest the refinement
-    // visits (at most `refine_pixels`, half size at most) up, and a stack of eight blurs of
-    // that level for the reference and each frame refined at once.
+    // of them; its luma now streams into the first reduction), plus level 0 itself where
+    // registration keeps it (`register::finest_level`). Then, refining, every frame's levels
+    // from the finest the refinement visits (at most `refine_pixels`, half size at most) up,
+    // and a stack of eight blurs of that level for the reference and each frame refined at
+    // once.
     let fine = p.align.as_ref().map_or(0, |a| a.refine_pixels.min(px / 4));
     let full_level = p
         .align
         .as_ref()
-        .is_some_and(|a| px <= a.detect_pixels || (a.local && px <= a.local_pixels));
+        .is_some_and(|a| finest_level(s.width, s.height, a) == 0);
     let prepared = if full_level { 10 } else { 6 };
     let refine = |k: usize| s.frames * fine * 16 / 3 + (k + 1) * 8 * 4 * fine;
     let register = |k: usize| frames + (k * px * prepared).max(refine(k));

@@ -196,6 +196,17 @@ pub fn register(
     register_with(lumas, reference, p, 0, &NoProgress)
 }
 
+/// The finest pyramid level registration keeps of a `width`×`height` frame: 0, its luma
+/// whole, only where the frame is small enough (or too thin) for its keypoints or, local
+/// registration on, its local motion to be found at full size; the refinement never works
+/// there. The memory plan counts that plane (`stack::memory`).
+pub fn finest_level(width: usize, height: usize, p: &RegisterParams) -> usize {
+    let det = level_within(width, height, p.detect_pixels);
+    let fine = level_within(width, height, p.refine_pixels).max(1);
+    let near = level_within(width, height, p.local_pixels);
+    det.min(fine).min(if p.local { near } else { det })
+}
+
 /// [`register`] of frames of any sample type and channels (one size), each frame's luma made a
 /// row at a time as its pyramid is reduced ([`levels::Luma`]), so no full-resolution luma
 /// plane is made (12 MB a frame at 3 MP; about a tenth of amber_macro's page faults were
@@ -233,7 +244,7 @@ pub fn register_with<T: Sample>(
     let fine = level_within(w, h, p.refine_pixels).max(1);
     let coarse = fine + p.refine_levels.max(1) - 1;
     let near = level_within(w, h, p.local_pixels);
-    let first = det.min(fine).min(if p.local { near } else { det });
+    let first = finest_level(w, h, p);
     // Unlimited, rayon still prepares one frame per thread at a time.
     let at_once = match concurrent_frames {
         0 => n.max(1),
