@@ -179,3 +179,29 @@ fn a_tight_memory_budget_changes_nothing_but_the_bands() {
         assert!(tight.image == whole, "{method:?}: banded image differs");
     }
 }
+
+/// The main job's magenta disc is plain, and at its rim the frames focused farther show the
+/// background's stripes through its defocused edge: without the flat-region rule of the spill
+/// stage its own plane is hardly labelled (13 % of it, measured), with it most of the disc is.
+#[test]
+fn the_main_jobs_plain_disc_takes_its_own_plane() {
+    let s = stack("bundles/shaken");
+    let (w, plane) = (s.truth.width, 3);
+    // The disc: plane 3 in a box around it (the ruler below it is planes 0 and 1).
+    let disc: Vec<usize> = (0..s.depth.len())
+        .filter(|&i| (340..460).contains(&(i % w)) && (230..330).contains(&(i / w)))
+        .filter(|&i| s.depth[i] == plane)
+        .collect();
+    assert!(disc.len() > 3000, "{} pixels", disc.len());
+    let share = |spill| {
+        let params = FuseParams {
+            spill,
+            ..FuseParams::default()
+        };
+        let labels = fuse(s.frames.clone(), &params, &NoProgress).unwrap().labels;
+        disc.iter().filter(|&&i| labels[i] == plane).count() as f64 / disc.len() as f64
+    };
+    let (without, with) = (share(false), share(true));
+    eprintln!("disc labelled with its own plane: {without:.3} without, {with:.3} with");
+    assert!(without < 0.3 && with > 0.8, "{without:.3} → {with:.3}");
+}

@@ -18,7 +18,7 @@ fn candidate_labelling_is_within_one_percent_of_exhaustive_on_flats() {
     let frames = flats(&p);
     let coverage = vec![Coverage::full(p.width, p.height); p.frames];
     let label = |params: GraphCutParams| {
-        let labels = label_stack(&frames, &coverage, 7, &params, usize::MAX, &NoProgress);
+        let labels = label_stack(&frames, &coverage, 7, &params, usize::MAX, &NoProgress).labels;
         (
             labelling_energy(&frames, &coverage, &labels, &params),
             labels,

@@ -2,7 +2,7 @@
 
 use super::align::{estimate_exposure, warp_frame_into, Coverage, Exposure, Rect};
 use super::compose::{compose, Select};
-use super::graphcut::label_stack;
+use super::graphcut::{label_stack, Labelled};
 use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
 use super::order::{focus_order, OrderEvidence};
@@ -152,7 +152,10 @@ pub fn fuse<T: Sample>(
     let mut spill = None;
     let (mut image, mut labels, order) = match params.method {
         Method::GraphCut => {
-            let mut labels = label_stack(
+            let Labelled {
+                mut labels,
+                textured,
+            } = label_stack(
                 &frames,
                 coverage,
                 reference as u8,
@@ -167,6 +170,7 @@ pub fn fuse<T: Sample>(
                 spill = Some(unmix(
                     &mut frames,
                     &mut labels,
+                    &textured,
                     coverage,
                     order.order,
                     progress,

@@ -401,6 +401,16 @@ fn coarse_factor(pixels: usize, target: usize) -> usize {
     ((pixels as f64 / target.max(1) as f64).sqrt().ceil() as usize).max(1)
 }
 
+/// A stack's labels, and where its focus measure found texture.
+pub struct Labelled {
+    /// Per pixel, the frame to copy it from.
+    pub labels: Vec<u8>,
+    /// Per pixel, whether some frame's focus amplitude there is above noise (four times
+    /// [`GraphCutParams::noise_floor`]); elsewhere every frame ties and the label says nothing of
+    /// depth ([`super::flat_regions`]).
+    pub textured: Vec<bool>,
+}
+
 /// Labels each pixel of an aligned stack with the index of the frame to copy it from. A frame is
 /// never chosen where its `coverage` misses; `fallback` must cover every pixel (the reference).
 /// With `band_rows` below the height, the full-resolution focus amplitudes are never held
@@ -412,7 +422,7 @@ pub fn label_stack<T: Sample>(
     p: &GraphCutParams,
     band_rows: usize,
     progress: &dyn Progress,
-) -> Vec<u8> {
+) -> Labelled {
     let (w, h) = (frames[0].width, frames[0].height);
     let f = coarse_factor(w * h, p.coarse_pixels);
     let whole = band_rows >= h || f == 1;
@@ -438,9 +448,11 @@ pub fn label_stack<T: Sample>(
             rows: band_rows,
         },
     };
+    let texture = (4.0 * p.noise_floor * AMP_SCALE) as u16;
     if f == 1 {
-        let mut labels = focus.with(0..h, |a| {
-            Level::new(frames, a, p.lambda, p).sharpest_labels(w * h)
+        let (mut labels, textured) = focus.with(0..h, |a| {
+            let labels = Level::new(frames, a, p.lambda, p).sharpest_labels(w * h);
+            (labels, a.max.iter().map(|&m| m > texture).collect())
         });
         let solve = Solve {
             frames,
@@ -450,7 +462,7 @@ pub fn label_stack<T: Sample>(
         };
         solve.tiled(w, h, &mut labels, None, 256, 2, progress);
         keep_covered(&mut labels, w, coverage, fallback);
-        return labels;
+        return Labelled { labels, textured };
     }
 
     // Coarse level: seam weight λ/f keeps the energy's balance (areas shrink by f², seams by f).
@@ -472,7 +484,7 @@ pub fn label_stack<T: Sample>(
     let boundary = coarse_boundaries(cw, ch, &clabels);
     let mut labels = vec![0u8; w * h];
     let mut free = vec![false; w * h];
-    let texture = (4.0 * p.noise_floor * AMP_SCALE) as u16;
+    let mut textured = vec![false; w * h];
     let step = focus.rows().min(h);
     for y0 in (0..h).step_by(step) {
         let rows = y0..(y0 + step).min(h);
@@ -480,15 +492,16 @@ pub fn label_stack<T: Sample>(
             labels[rows.start * w..rows.end * w]
                 .par_chunks_mut(w)
                 .zip(free[rows.start * w..rows.end * w].par_chunks_mut(w))
+                .zip(textured[rows.start * w..rows.end * w].par_chunks_mut(w))
                 .zip(rows.clone())
-                .for_each(|((lrow, frow), y)| {
+                .for_each(|(((lrow, frow), trow), y)| {
                     for x in 0..w {
                         let c = (y / f) * cw + x / f;
                         let l = clabels[c];
                         lrow[x] = l;
                         let i = y * w + x - a.offset;
-                        let missed =
-                            a.max[i] > texture && 2 * a.per_frame[l as usize][i] < a.max[i];
+                        trow[x] = a.max[i] > texture;
+                        let missed = trow[x] && 2 * a.per_frame[l as usize][i] < a.max[i];
                         frow[x] = boundary[c] || missed;
                     }
                 });
@@ -502,7 +515,7 @@ pub fn label_stack<T: Sample>(
     };
     solve.tiled(w, h, &mut labels, Some(&free), 64, 2, progress);
     keep_covered(&mut labels, w, coverage, fallback);
-    labels
+    Labelled { labels, textured }
 }
 
 /// Relabels with `fallback` every pixel whose label's frame does not cover it.

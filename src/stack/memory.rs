@@ -9,6 +9,7 @@
 
 use super::align::warp_lanes;
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
+use super::flat_regions;
 use super::params::{FuseParams, Method};
 use super::register::finest_level;
 use super::spill;
@@ -106,11 +107,11 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     // Warping: the frames, the spare frame each is warped into, and the frame being warped as
     // floats in the warp's lanes (four a pixel for colour: one vector multiply-add a tap).
     let warp = frames + frame + 4 * px * warp_lanes(s.channels);
-    // Focus amplitudes (u16 per frame) and their maximum, the label, free and strip maps (a
-    // frame's luma is made a row at a time as its amplitudes are measured); in bands, the
-    // amplitudes of a band's rows and, while each frame's are measured for the coarse level,
-    // one frame's at full size.
-    let maps = 5 * px;
+    // Focus amplitudes (u16 per frame) and their maximum, the label, free, texture and strip
+    // maps (a frame's luma is made a row at a time as its amplitudes are measured); in bands,
+    // the amplitudes of a band's rows and, while each frame's are measured for the coarse
+    // level, one frame's at full size.
+    let maps = 6 * px;
     let labels_whole = frames + maps + (s.frames + 1) * 2 * px;
     let labels_banded = |rows: usize| {
         let band = (s.frames + 1) * 2 * (rows + 2) * s.width;
@@ -158,9 +159,14 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     } else {
         (fit_rows / grid).max(least / grid) * grid
     };
-    // Taking the spill out: the frames, the label map and the un-mixing's own buffers.
+    // Taking the spill out: the frames, the label and texture maps and the un-mixing's own
+    // buffers, or before them the flat regions' (`flat_regions::settle`).
     let unmix = match graphcut && p.spill {
-        true => frames + px + spill::working_bytes(s.frames, s.width, s.height, s.channels),
+        true => {
+            let own = spill::working_bytes(s.frames, s.width, s.height, s.channels);
+            let settle = flat_regions::working_bytes(px, rayon::current_num_threads());
+            frames + 2 * px + own.max(settle)
+        }
         false => 0,
     };
     let peak_of = |k: usize, label_rows: usize, rows: usize| {

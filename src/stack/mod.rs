@@ -3,6 +3,7 @@ pub mod align;
 pub mod blur;
 pub mod compose;
 pub mod expansion;
+pub mod flat_regions;
 pub mod focal_axis;
 pub mod focus;
 pub mod fuse;

@@ -29,6 +29,7 @@
 
 use super::align::Coverage;
 use super::blur::{downsample_area, gaussian_blur};
+use super::flat_regions::{self, Settled};
 use super::focal_axis;
 use super::image::{luma_of, Image, Plane, Sample, Tap};
 use super::order::Order;
@@ -111,6 +112,8 @@ pub struct Unmixed {
     pub changed: Vec<usize>,
     /// Pixels whose label moved to a near object's frame (see [`refine`]).
     pub relabelled: usize,
+    /// Flat regions given the frame that shows their outline crisp, first ([`flat_regions`]).
+    pub settled: Settled,
     /// Pixels in a frame.
     pub frame_pixels: usize,
 }
@@ -118,6 +121,14 @@ pub struct Unmixed {
 /// One line for the logs.
 impl std::fmt::Display for Unmixed {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        if self.settled.regions > 0 {
+            write!(
+                f,
+                "{} flat regions ({} pixels) given the nearer frame that shows their outline \
+                 crisp; ",
+                self.settled.regions, self.settled.pixels
+            )?;
+        }
         let Some(light) = self.light else {
             return write!(f, "no depth step to take a halo out of");
         };
@@ -158,16 +169,18 @@ fn reduction(width: usize, height: usize) -> usize {
         .expect("a factor as large as the image fits")
 }
 
-/// Un-mixes every frame in place, given the label map and the stack's focus order (an
-/// `Unknown` order is taken as nearest first). Where the near side of a step is mislabelled (a
-/// farther frame taken where the near object is, which shows the background through the
-/// object's edge), the labels are moved to the near object's frame. Reports its own stage,
+/// Un-mixes every frame in place, given the label map, where the labelling found texture and
+/// the stack's focus order (an `Unknown` order is taken as nearest first). Where the near side
+/// of a step is mislabelled (a farther frame taken where the near object is, which shows the
+/// background through the object's edge), the labels are moved to the near object's frame:
+/// first flat regions' ([`flat_regions`]), then each pixel's near a step. Reports its own stage,
 /// [`Stage::Spill`], a step per frame reduced, fitted (in each light) and un-mixed: its work
 /// grows with the frames and their depth steps, and a watchdog waiting on progress must see it
 /// move.
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],
+    textured: &[bool],
     coverage: &[Coverage],
     order: Order,
     progress: &dyn Progress,
@@ -178,11 +191,15 @@ pub fn unmix<T: Sample>(
         pairs: Vec::new(),
         changed: vec![0; n],
         relabelled: 0,
+        settled: Settled::default(),
         frame_pixels: frames.first().map_or(0, |f| f.pixels()),
     };
     if n < 3 || frames[0].pixels() == 0 {
         return out;
     }
+    out.settled = flat_regions::settle(frames, coverage, labels, textured, &|f| {
+        order.depth_of(f, n)
+    });
     let (w, h) = (frames[0].width, frames[0].height);
     debug_assert_eq!(labels.len(), w * h);
     // Reduce, refine, fit in two lights, un-mix: see `fit` and the loop below for the steps.
@@ -907,6 +924,7 @@ mod tests {
             let out = unmix(
                 &mut frames,
                 &mut l,
+                &[true; SIZE * SIZE],
                 &full(3),
                 Order::NearestFirst,
                 &NoProgress,
@@ -964,6 +982,7 @@ mod tests {
         let out = unmix(
             &mut frames,
             &mut labels(),
+            &[true; SIZE * SIZE],
             &full(3),
             Order::NearestFirst,
             &steps,
@@ -1023,6 +1042,7 @@ mod tests {
         let out = unmix(
             &mut frames,
             &mut labels,
+            &[true; SIZE * SIZE],
             &full(3),
             Order::NearestFirst,
             &NoProgress,
@@ -1043,6 +1063,7 @@ mod tests {
         unmix(
             &mut forward,
             &mut fl,
+            &[true; SIZE * SIZE],
             &full(3),
             Order::NearestFirst,
             &NoProgress,
@@ -1052,6 +1073,7 @@ mod tests {
         let out = unmix(
             &mut reversed,
             &mut rl,
+            &[true; SIZE * SIZE],
             &full(3),
             Order::FarthestFirst,
             &NoProgress,
@@ -1074,7 +1096,14 @@ mod tests {
         ] {
             let (before, labels_before) = (f.clone(), l.clone());
             let cover = full(f.len());
-            let out = unmix(&mut f, &mut l, &cover, Order::NearestFirst, &NoProgress);
+            let out = unmix(
+                &mut f,
+                &mut l,
+                &[true; SIZE * SIZE],
+                &cover,
+                Order::NearestFirst,
+                &NoProgress,
+            );
             assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
             assert_eq!((f, l), (before, labels_before));
         }
