@@ -44,8 +44,9 @@ pub struct FuseSettings {
     pub local_registration: bool,
     /// Halo removal (`--no-spill-removal` turns it off): where a near object meets the
     /// background, its defocused colour is taken out of the frames focused farther before
-    /// they are composed, and those frames do not give the near object's pixels their finest
-    /// detail, the background seen through its defocused edge (graph cut only).
+    /// they are composed, those frames do not give the near object's pixels their finest
+    /// detail, the background seen through its defocused edge, and a plain near object whose
+    /// rim took a far frame takes its own (graph cut only).
     #[arg(long = "no-spill-removal", action = clap::ArgAction::SetFalse)]
     pub spill_removal: bool,
 }

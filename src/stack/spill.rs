@@ -122,11 +122,12 @@ pub struct Unmixed {
 impl std::fmt::Display for Unmixed {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
         if self.settled.regions > 0 {
+            let (n, px) = (self.settled.regions, self.settled.pixels);
+            let s = if n == 1 { "" } else { "s" };
             write!(
                 f,
-                "{} flat regions ({} pixels) given the nearer frame that shows their outline \
-                 crisp; ",
-                self.settled.regions, self.settled.pixels
+                "{n} flat region{s} ({px} pixels) given the nearer frame that shows the outline \
+                 crisp; "
             )?;
         }
         let Some(light) = self.light else {
@@ -174,9 +175,9 @@ fn reduction(width: usize, height: usize) -> usize {
 /// of a step is mislabelled (a farther frame taken where the near object is, which shows the
 /// background through the object's edge), the labels are moved to the near object's frame:
 /// first flat regions' ([`flat_regions`]), then each pixel's near a step. Reports its own stage,
-/// [`Stage::Spill`], a step per frame reduced, fitted (in each light) and un-mixed: its work
-/// grows with the frames and their depth steps, and a watchdog waiting on progress must see it
-/// move.
+/// [`Stage::Spill`], a step for the flat regions and one per frame reduced, fitted (in each
+/// light) and un-mixed: its work grows with the frames and their depth steps, and a watchdog
+/// waiting on progress must see it move.
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],
@@ -197,13 +198,15 @@ pub fn unmix<T: Sample>(
     if n < 3 || frames[0].pixels() == 0 {
         return out;
     }
+    let (w, h) = (frames[0].width, frames[0].height);
+    debug_assert_eq!(labels.len(), w * h);
+    // Settle, reduce, refine, fit in two lights, un-mix: see `fit` and the loop below for the
+    // steps.
+    progress.stage(Stage::Spill, 4 * n + 2);
     out.settled = flat_regions::settle(frames, coverage, labels, textured, &|f| {
         order.depth_of(f, n)
     });
-    let (w, h) = (frames[0].width, frames[0].height);
-    debug_assert_eq!(labels.len(), w * h);
-    // Reduce, refine, fit in two lights, un-mix: see `fit` and the loop below for the steps.
-    progress.stage(Stage::Spill, 4 * n + 1);
+    progress.advance(1);
     // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
     let frame_of = |d: usize| order.frame_at(d, n);
     let factor = reduction(w, h);
@@ -989,8 +992,8 @@ mod tests {
         );
         assert!(!out.pairs.is_empty());
         let stages = steps.stages.into_inner().unwrap();
-        assert_eq!(stages, [(Stage::Spill, 13)]);
-        assert_eq!(steps.done.into_inner(), 13);
+        assert_eq!(stages, [(Stage::Spill, 14)]);
+        assert_eq!(steps.done.into_inner(), 14);
     }
 
     /// The main job's nearest object is fitted into the frames two and three planes behind it
