@@ -6,7 +6,7 @@
 //! farther show the background's texture through the object's defocused edge, which the focus
 //! measure takes for the sharpest detail there. The rim is then labelled with a far frame, the
 //! object is composed with a blurred, haloed edge, and the spill removal finds no near region to
-//! take the halo out of (the replay bundle's magenta disc: its plane never labelled at all).
+//! take the halo out of (the replay bundle's magenta disc: its plane held 13 % of it).
 //!
 //! The cue is the region's outline. The frame focused on a plain object shows it flat right up
 //! to a crisp edge; a defocused frame shows a blurred ramp there, or texture seen through it,
