@@ -26,6 +26,7 @@
 
 use super::align::Coverage;
 use super::image::{Image, Sample};
+use super::morphology::{dilate, distance};
 use super::order::MIN_STEP;
 use rayon::prelude::*;
 use std::ops::Range;
@@ -276,7 +277,7 @@ impl Window {
             }
             border.extend((0..ww).filter(|&x| edge[x]).map(|x| y * ww + x));
         }
-        let dist = distance(&inside, ww, wh);
+        let dist = distance(&inside, ww, wh, FAR);
         Window {
             xs,
             ys,
@@ -377,8 +378,8 @@ impl Window {
     }
 
     /// Frame `f`'s flags on the window near the region, outside it (elsewhere they are never read):
-    /// shown flat, a crisp step, a crisp step within [`POOL`]. A pixel the frame does not cover
-    /// is none of them.
+    /// [`SHOWN_FLAT`] or [`STEEP`] (a crisp step; [`Self::near_crisp`] pools them). A pixel the
+    /// frame does not cover is neither.
     fn flags<T: Sample>(&self, f: &Image<T>, cov: &Coverage) -> Vec<u8> {
         let (w, h, ch) = (f.width, f.height, f.channels);
         let ww = self.width();
@@ -407,17 +408,10 @@ impl Window {
                 let n = cols.len() * ch;
                 steps.clear();
                 steps.resize(n, 0.0f32);
-                if wide.len() > cols.len() || cols.end < w {
-                    // Steps right: each sample against the next pixel's.
-                    for (s, (a, b)) in steps.iter_mut().zip(here.iter().zip(&here[ch..])) {
-                        *s = (b - a).abs();
-                    }
-                } else {
-                    // The last column of the image has no step right.
-                    let m = n - ch;
-                    for (s, (a, b)) in steps[..m].iter_mut().zip(here.iter().zip(&here[ch..])) {
-                        *s = (b - a).abs();
-                    }
+                // Steps right: each sample against the next pixel's; at the image's last
+                // column `here` has no next pixel and the step stays 0.
+                for (s, (a, b)) in steps.iter_mut().zip(here.iter().zip(&here[ch..])) {
+                    *s = (b - a).abs();
                 }
                 if y + 1 < h {
                     smooth_row(f, y + 1, wide, &mut vert, &mut below);
@@ -495,79 +489,6 @@ impl Grown {
     fn crisp_share(&self) -> f64 {
         self.crisp as f64 / self.ring.max(1) as f64
     }
-}
-
-/// City-block distance of every pixel from the `inside` ones, at most [`FAR`]: two
-/// raster passes.
-fn distance(inside: &[bool], w: usize, h: usize) -> Vec<u8> {
-    let mut d: Vec<u8> = inside.iter().map(|&i| if i { 0 } else { FAR }).collect();
-    // Each pass: from the row before (whole rows, in vector lanes), then along the row.
-    for y in 0..h {
-        if y > 0 {
-            let (before, row) = d[(y - 1) * w..(y + 1) * w].split_at_mut(w);
-            for (v, &b) in row.iter_mut().zip(before.iter()) {
-                *v = (*v).min(b + 1);
-            }
-        }
-        let row = &mut d[y * w..][..w];
-        for x in 1..w {
-            row[x] = row[x].min(row[x - 1] + 1);
-        }
-    }
-    for y in (0..h).rev() {
-        if y + 1 < h {
-            let (row, after) = d[y * w..(y + 2) * w].split_at_mut(w);
-            for (v, &a) in row.iter_mut().zip(after.iter()) {
-                *v = (*v).min(a + 1);
-            }
-        }
-        let row = &mut d[y * w..][..w];
-        for x in (0..w.saturating_sub(1)).rev() {
-            row[x] = row[x].min(row[x + 1] + 1);
-        }
-    }
-    d
-}
-
-/// Whether each pixel has a `mask` pixel within `r` (a square): running counts along the rows,
-/// then down the columns.
-fn dilate(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    let mut across = vec![0u16; w * h];
-    for (src, dst) in mask.chunks_exact(w).zip(across.chunks_exact_mut(w)) {
-        let mut count = src[..r.min(w)].iter().filter(|&&m| m).count() as u16;
-        for x in 0..w {
-            if x + r < w {
-                count += u16::from(src[x + r]);
-            }
-            dst[x] = count;
-            if x >= r {
-                count -= u16::from(src[x - r]);
-            }
-        }
-    }
-    let mut column = vec![0u16; w];
-    for row in across.chunks_exact(w).take(r.min(h)) {
-        for (c, &a) in column.iter_mut().zip(row) {
-            *c += u16::from(a > 0);
-        }
-    }
-    let mut out = vec![false; w * h];
-    for y in 0..h {
-        if y + r < h {
-            for (c, &a) in column.iter_mut().zip(&across[(y + r) * w..][..w]) {
-                *c += u16::from(a > 0);
-            }
-        }
-        for (o, &c) in out[y * w..][..w].iter_mut().zip(&column) {
-            *o = c > 0;
-        }
-        if y >= r {
-            for (c, &a) in column.iter_mut().zip(&across[(y - r) * w..][..w]) {
-                *c -= u16::from(a > 0);
-            }
-        }
-    }
-    out
 }
 
 /// Row `y` of frame `f` smoothed by the 3×3 binomial filter on columns `xs`, channels
@@ -757,16 +678,5 @@ mod tests {
         let settled = settle(&frames, &cover, &mut labels, &textured, &|f| f);
         assert_eq!(settled, Settled::default());
         assert_eq!(labels, before);
-    }
-
-    #[test]
-    fn the_distance_from_a_region_is_city_block_and_capped() {
-        let (w, h) = (40, 3);
-        let mut inside = vec![false; w * h];
-        inside[w + 2] = true;
-        let d = distance(&inside, w, h);
-        assert_eq!(&d[w..w + 6], &[2, 1, 0, 1, 2, 3]);
-        assert_eq!((d[2], d[0]), (1, 3));
-        assert_eq!(d[w + 39], FAR);
     }
 }

@@ -13,6 +13,7 @@ pub mod image;
 pub mod maxflow;
 pub mod memory;
 pub mod metrics;
+pub mod morphology;
 pub mod order;
 pub mod params;
 pub mod pyramid;

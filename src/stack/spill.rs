@@ -32,6 +32,7 @@ use super::blur::{downsample_area, gaussian_blur};
 use super::flat_regions::{self, Settled};
 use super::focal_axis;
 use super::image::{luma_of, Image, Plane, Sample, Tap};
+use super::morphology::{distance, window_min};
 use super::order::Order;
 use super::srgb;
 use super::{Progress, Stage};
@@ -156,11 +157,14 @@ impl std::fmt::Display for Unmixed {
 
 /// Bytes [`unmix`] holds besides the frames, for the memory plan: the reduced frames in one
 /// light and their luma in both, the region masks (before and after refinement) and their
-/// interiors, one far frame's spill, and a few full-size maps of one byte a pixel.
+/// interiors (a byte a pixel), one far frame's spill, and a few full-size maps of one byte a
+/// pixel.
 pub fn working_bytes(frames: usize, width: usize, height: usize, channels: usize) -> usize {
     let f = reduction(width, height);
     let reduced = width.div_ceil(f) * height.div_ceil(f);
-    4 * reduced * (frames * channels + 5 * frames + 2 * (channels + 1)) + 8 * width * height
+    4 * reduced * (frames * channels + 4 * frames + 2 * (channels + 1))
+        + reduced * frames
+        + 8 * width * height
 }
 
 /// The factor the working resolution is reduced by: the least that fits [`WORK_PIXELS`].
@@ -307,35 +311,6 @@ fn region_masks(depth: &[u8], w: usize, h: usize, n: usize, factor: usize) -> Ve
         .collect()
 }
 
-/// The smallest value of `map` within `r` pixels (a square window, truncated at the borders).
-/// Separable: along each row the minimum of its 2r+1 shifts, then down the columns the
-/// minimum of each row's 2r+1 neighbours, every step a minimum of two whole rows, which the
-/// compiler vectorises (32 pixels an instruction). At r = 8 that is about a pixel an
-/// instruction; van Herk's running minima, a division and two branches a pixel and transposes
-/// between, took 0.16 s of CPU on a 3 × 5.5 MP stack.
-fn window_min(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
-    let into_min = |out: &mut [u8], src: &[u8]| {
-        out.iter_mut().zip(src).for_each(|(o, &v)| *o = (*o).min(v));
-    };
-    let mut rows = map.to_vec();
-    rows.par_chunks_mut(w)
-        .zip(map.par_chunks(w))
-        .for_each(|(out, row)| {
-            for o in 1..=r.min(w - 1) {
-                into_min(&mut out[..w - o], &row[o..]);
-                into_min(&mut out[o..], &row[..w - o]);
-            }
-        });
-    let mut out = rows.clone();
-    out.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        let near = y.saturating_sub(r)..=(y + r).min(h - 1);
-        for yy in near.filter(|&yy| yy != y) {
-            into_min(out, &rows[yy * w..][..w]);
-        }
-    });
-    out
-}
-
 /// The near objects' true extent next to each depth step.
 struct Refined {
     /// Per pixel, the depth rank of the object seen there.
@@ -458,41 +433,6 @@ fn refine<T: Sample>(
     }
 }
 
-/// Distance (city block, reduced pixels) from each pixel inside a mask to the nearest pixel
-/// outside it; 0 outside.
-fn inside_distance(mask: &Plane) -> Vec<u32> {
-    let (w, h) = (mask.width, mask.height);
-    let big = (w + h) as u32;
-    let mut d: Vec<u32> = mask
-        .data
-        .iter()
-        .map(|&a| if a >= 0.5 { big } else { 0 })
-        .collect();
-    for y in 0..h {
-        for x in 0..w {
-            let i = y * w + x;
-            if d[i] == 0 {
-                continue;
-            }
-            let up = if y > 0 { d[i - w] + 1 } else { big };
-            let left = if x > 0 { d[i - 1] + 1 } else { big };
-            d[i] = d[i].min(up).min(left);
-        }
-    }
-    for y in (0..h).rev() {
-        for x in (0..w).rev() {
-            let i = y * w + x;
-            if d[i] == 0 {
-                continue;
-            }
-            let down = if y + 1 < h { d[i + w] + 1 } else { big };
-            let right = if x + 1 < w { d[i + 1] + 1 } else { big };
-            d[i] = d[i].min(down).min(right);
-        }
-    }
-    d
-}
-
 /// The luma of reduced sRGB-encoded planes, in `light`.
 fn luma(planes: &[Plane], light: Light) -> Plane {
     let px = planes[0].pixels();
@@ -519,7 +459,16 @@ fn fit(
     progress: &dyn Progress,
 ) -> (Option<Light>, Vec<Pair>) {
     let n = masks.len();
-    let interiors: Vec<Vec<u32>> = masks.par_iter().map(inside_distance).collect();
+    // How deep inside its region each pixel lies: the distance from the pixels outside it.
+    // Capped at 255 reduced pixels, far beyond the deepest margin a fit asks for (3σ at
+    // `SIGMA_MAX`).
+    let interiors: Vec<Vec<u8>> = masks
+        .par_iter()
+        .map(|m| {
+            let outside: Vec<bool> = m.data.iter().map(|&a| a < 0.5).collect();
+            distance(&outside, m.width, m.height, u8::MAX)
+        })
+        .collect();
     let mut best: Option<(f64, Light, Vec<Pair>)> = None;
     for (light, lumas) in lights {
         let fits: Vec<(Pair, f64)> = (0..n)
@@ -584,12 +533,12 @@ fn fit_near(
     k: usize,
     far: &[usize],
     lumas: &[Plane],
-    inside: &[u32],
+    inside: &[u8],
     factor: usize,
 ) -> Vec<(Pair, f64)> {
     let (rw, rh) = (lumas[k].width, lumas[k].height);
     let f = factor as f32;
-    let margin = |sigma: f32| (3.0 * sigma / f).ceil() as u32;
+    let margin = |sigma: f32| (3.0 * sigma / f).ceil() as u8;
     let first = margin(SIGMA_MIN);
     let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
     for (i, _) in inside.iter().enumerate().filter(|(_, &d)| d > first) {
@@ -611,7 +560,7 @@ fn fit_near(
     };
     let near = Plane::from_vec(cw, ch, 1, crop(&lumas[k].data));
     let fars: Vec<Vec<f32>> = far.iter().map(|&l| crop(&lumas[l].data)).collect();
-    let depth_in: Vec<u32> = (y0..=y1)
+    let depth_in: Vec<u8> = (y0..=y1)
         .flat_map(|y| inside[y * rw + x0..=y * rw + x1].iter().copied())
         .collect();
     // Each far frame's residual at `sigma`, relative to its variance over the interior: deeper
@@ -621,7 +570,7 @@ fn fit_near(
     // the frames focused 2-3 planes behind (σ 4-6) was never un-mixed.
     let residuals = |sigma: f32| -> Option<Vec<f64>> {
         let deeper =
-            |m: u32| -> Vec<usize> { (0..depth_in.len()).filter(|&i| depth_in[i] > m).collect() };
+            |m: u8| -> Vec<usize> { (0..depth_in.len()).filter(|&i| depth_in[i] > m).collect() };
         let idx = Some(deeper(margin(sigma)))
             .filter(|idx| idx.len() >= MIN_INTERIOR)
             .or_else(|| Some(deeper(margin(0.5 * sigma))))
@@ -1109,30 +1058,6 @@ mod tests {
             );
             assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
             assert_eq!((f, l), (before, labels_before));
-        }
-    }
-
-    #[test]
-    fn the_window_minimum_is_the_minimum_over_the_window() {
-        // Windows narrower than the map and wider than it either way.
-        for (w, h, r) in [(23, 17, 3), (23, 17, 0), (5, 17, 8), (23, 4, 8)] {
-            check_window_min(w, h, r);
-        }
-    }
-
-    fn check_window_min(w: usize, h: usize, r: usize) {
-        let map: Vec<u8> = (0..w * h).map(|i| ((i * 37 + i / 5) % 251) as u8).collect();
-        let fast = window_min(&map, w, h, r);
-        for y in 0..h {
-            for x in 0..w {
-                let slow = (y.saturating_sub(r)..=(y + r).min(h - 1))
-                    .flat_map(|yy| {
-                        (x.saturating_sub(r)..=(x + r).min(w - 1)).map(move |xx| (xx, yy))
-                    })
-                    .map(|(xx, yy)| map[yy * w + xx])
-                    .min();
-                assert_eq!(Some(fast[y * w + x]), slow, "({x}, {y})");
-            }
         }
     }
 }
