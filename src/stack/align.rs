@@ -7,7 +7,7 @@
 //! picks it outside.
 
 use super::image::{Image, Sample};
-use super::transform::Warp;
+use super::transform::{Raster, Warp};
 use rayon::prelude::*;
 
 /// Per row, the half-open span of pixels a warped frame covers: an affine footprint is convex,
@@ -300,7 +300,6 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
 ) -> Coverage {
     let w = reference.width;
     let (fw, fh) = (frame.width, frame.height);
-    let (umax, vmax) = (fw as f64 - 1.0, fh as f64 - 1.0);
     let scale = T::MAX;
     // v' = (v − offset·MAX) / gain as one multiply-add.
     let correct: [(f32, f32); C] = std::array::from_fn(|c| {
@@ -321,61 +320,127 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
                 pad.fill(0.0);
             }
         });
-    let table = keys_table();
-    let raster = warp.raster(w);
+    let rows = Rows {
+        src,
+        size: (fw, fh),
+        table: keys_table(),
+        raster: warp.raster(w),
+        correct,
+    };
     let spans: Vec<(u32, u32)> = data
         .par_chunks_mut(w * C)
+        .zip(reference.data.par_chunks(w * C))
         .enumerate()
-        .map(|(y, row)| {
-            let (mut lo, mut hi) = (w, 0);
-            let at = raster.row(y);
-            for (x, out) in row.chunks_exact_mut(C).enumerate() {
-                let (u, v) = at(x);
-                if !(0.0..=umax).contains(&u) || !(0.0..=vmax).contains(&v) {
-                    out.copy_from_slice(&reference.data[(y * w + x) * C..][..C]);
-                    continue;
-                }
-                (lo, hi) = (lo.min(x), x + 1);
-                let ((x0, px), (y0, py)) = (tap(u), tap(v));
-                let (kx, ky) = (table[px], table[py]);
-                let mut acc = [0.0f32; L];
-                if x0 >= 1 && y0 >= 1 && x0 + 2 < fw && y0 + 2 < fh {
-                    // Inside: the 4×4 taps are contiguous runs of rows.
-                    let base = ((y0 - 1) * fw + x0 - 1) * L;
-                    for (r, &wy) in ky.iter().enumerate() {
-                        let taps = &src[base + r * fw * L..][..4 * L];
-                        for (px, &wx) in taps.chunks_exact(L).zip(&kx) {
-                            let k = wx * wy;
-                            let px: &[f32; L] = px.try_into().expect("L lanes");
-                            for (a, s) in acc.iter_mut().zip(px) {
-                                *a += k * s;
-                            }
-                        }
-                    }
-                } else {
-                    let tap = |o: usize, k: usize, n: usize| (o + k).saturating_sub(1).min(n - 1);
-                    for (r, &wy) in ky.iter().enumerate() {
-                        let yy = tap(y0, r, fh);
-                        for (k, &wx) in kx.iter().enumerate() {
-                            let px = &src[(yy * fw + tap(x0, k, fw)) * L..][..L];
-                            for (a, s) in acc.iter_mut().zip(px) {
-                                *a += wx * wy * s;
-                            }
-                        }
-                    }
-                }
-                for ((o, &(m, b)), s) in out.iter_mut().zip(&correct).zip(acc) {
-                    *o = T::from_f32(s * m + b);
-                }
-            }
-            if hi <= lo {
-                (0, 0)
-            } else {
-                (lo as u32, hi as u32)
-            }
-        })
+        .map(|(y, (row, fallback))| rows.warp::<T, L>(y, row, fallback))
         .collect();
     Coverage { width: w, spans }
+}
+
+/// What [`warp_channels`] resamples a row of the output from.
+struct Rows<'a, const C: usize> {
+    /// The frame's samples as floats, `L` lanes a pixel.
+    src: &'a [f32],
+    /// The frame's width and height.
+    size: (usize, usize),
+    table: [[f32; 4]; PHASES],
+    raster: Raster<'a>,
+    /// Per channel, the exposure correction as a multiply-add.
+    correct: [(f32, f32); C],
+}
+
+impl<const C: usize> Rows<'_, C> {
+    /// Resamples output row `y` into `row`, taking `fallback`'s values where the frame does not
+    /// cover it; returns the span it covers. Compiled for AVX where the CPU has it: the same
+    /// arithmetic in the same order (no fused multiply-add), so the same output, in 5 % less
+    /// time on a hand-held 10 × 3.1 MP stack.
+    fn warp<T: Sample, const L: usize>(
+        &self,
+        y: usize,
+        row: &mut [T],
+        fallback: &[T],
+    ) -> (u32, u32) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the CPU has AVX, checked just above.
+            return unsafe { self.warp_avx::<T, L>(y, row, fallback) };
+        }
+        self.warp_body::<T, L>(y, row, fallback)
+    }
+
+    /// `warp_body` compiled for AVX.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    unsafe fn warp_avx<T: Sample, const L: usize>(
+        &self,
+        y: usize,
+        row: &mut [T],
+        fallback: &[T],
+    ) -> (u32, u32) {
+        self.warp_body::<T, L>(y, row, fallback)
+    }
+
+    #[inline(always)]
+    fn warp_body<T: Sample, const L: usize>(
+        &self,
+        y: usize,
+        row: &mut [T],
+        fallback: &[T],
+    ) -> (u32, u32) {
+        let (src, (fw, fh), table) = (self.src, self.size, &self.table);
+        let (umax, vmax) = (fw as f64 - 1.0, fh as f64 - 1.0);
+        let w = row.len() / C;
+        let (mut lo, mut hi) = (w, 0);
+        // The unused lane's sum, kept: a compiler that sees the lane unused splits every four-lane
+        // tap into a two-lane and a one-lane one, and the warp took 12 % more time so.
+        let mut pad = 0.0f32;
+        let at = self.raster.row(y);
+        for (x, out) in row.chunks_exact_mut(C).enumerate() {
+            let (u, v) = at(x);
+            if !(0.0..=umax).contains(&u) || !(0.0..=vmax).contains(&v) {
+                out.copy_from_slice(&fallback[x * C..][..C]);
+                continue;
+            }
+            (lo, hi) = (lo.min(x), x + 1);
+            let ((x0, px), (y0, py)) = (tap(u), tap(v));
+            let (kx, ky) = (table[px], table[py]);
+            let mut acc = [0.0f32; L];
+            if x0 >= 1 && y0 >= 1 && x0 + 2 < fw && y0 + 2 < fh {
+                // Inside: the 4×4 taps are contiguous runs of rows.
+                let base = ((y0 - 1) * fw + x0 - 1) * L;
+                for (r, &wy) in ky.iter().enumerate() {
+                    let taps = &src[base + r * fw * L..][..4 * L];
+                    for (px, &wx) in taps.chunks_exact(L).zip(&kx) {
+                        let k = wx * wy;
+                        let px: &[f32; L] = px.try_into().expect("L lanes");
+                        for (a, s) in acc.iter_mut().zip(px) {
+                            *a += k * s;
+                        }
+                    }
+                }
+            } else {
+                let tap = |o: usize, k: usize, n: usize| (o + k).saturating_sub(1).min(n - 1);
+                for (r, &wy) in ky.iter().enumerate() {
+                    let yy = tap(y0, r, fh);
+                    for (k, &wx) in kx.iter().enumerate() {
+                        let px = &src[(yy * fw + tap(x0, k, fw)) * L..][..L];
+                        for (a, s) in acc.iter_mut().zip(px) {
+                            *a += wx * wy * s;
+                        }
+                    }
+                }
+            }
+            pad += acc[L - 1];
+            for ((o, &(m, b)), s) in out.iter_mut().zip(&self.correct).zip(acc) {
+                *o = T::from_f32(s * m + b);
+            }
+        }
+        std::hint::black_box(pad);
+        if hi <= lo {
+            (0, 0)
+        } else {
+            (lo as u32, hi as u32)
+        }
+    }
 }
 
 #[cfg(test)]
