@@ -26,23 +26,31 @@ pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
     sum / ((w - 2) * (h - 2)) as f64 * 255.0
 }
 
-/// Σ Sobel gradient magnitude over the pixels of `l` that have all eight neighbours.
+/// Σ Sobel gradient magnitude over the pixels of `l` that have all eight neighbours. Each row
+/// sums in [`LANES`] single-precision lanes, which the compiler vectorises, and rows add up in
+/// double precision: summed a pixel at a time in double precision it was 3 % of a hand-held
+/// fuse's CPU time, for a figure only the log shows.
 fn gradient_sum(l: &Plane) -> f64 {
+    const LANES: usize = 8;
     let w = l.width;
-    let px = |x: usize, y: usize| l.data[y * w + x];
     let mut s = 0.0f64;
+    let mut mag = vec![0.0f32; w - 2];
     for y in 1..l.height - 1 {
-        for x in 1..w - 1 {
-            let gx = px(x + 1, y - 1) + 2.0 * px(x + 1, y) + px(x + 1, y + 1)
-                - px(x - 1, y - 1)
-                - 2.0 * px(x - 1, y)
-                - px(x - 1, y + 1);
-            let gy = px(x - 1, y + 1) + 2.0 * px(x, y + 1) + px(x + 1, y + 1)
-                - px(x - 1, y - 1)
-                - 2.0 * px(x, y - 1)
-                - px(x + 1, y - 1);
-            s += ((gx * gx + gy * gy) as f64).sqrt();
+        let row = |dy: usize| &l.data[(y + dy - 1) * w..][..w];
+        let (a, b, c) = (row(0), row(1), row(2));
+        for (x, m) in mag.iter_mut().enumerate() {
+            // Pixel x + 1 from its neighbours at x, x + 1 and x + 2.
+            let gx = a[x + 2] + 2.0 * b[x + 2] + c[x + 2] - a[x] - 2.0 * b[x] - c[x];
+            let gy = c[x] + 2.0 * c[x + 1] + c[x + 2] - a[x] - 2.0 * a[x + 1] - a[x + 2];
+            *m = (gx * gx + gy * gy).sqrt();
         }
+        let mut lanes = [0.0f32; LANES];
+        let mut chunks = mag.chunks_exact(LANES);
+        for chunk in &mut chunks {
+            lanes.iter_mut().zip(chunk).for_each(|(a, &v)| *a += v);
+        }
+        let rest: f32 = chunks.remainder().iter().sum();
+        s += lanes.iter().map(|&v| f64::from(v)).sum::<f64>() + f64::from(rest);
     }
     s
 }
