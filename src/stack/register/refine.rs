@@ -217,23 +217,27 @@ fn iterate(
     }
 }
 
-/// Where each template pixel lands in a frame: the top-left source pixel and the bilinear
-/// weights, computed once per warp and shared by every layer sampled through it.
+/// Where each template pixel of a lattice lands in a frame: the top-left source pixel and the
+/// bilinear weights, computed once per warp and shared by every layer sampled through it. Held
+/// for the lattice's points only: the finest level's steps sample every other pixel of every
+/// other row, and maps of the whole template there were three quarters unused.
 #[derive(Default)]
 pub(super) struct Coords {
-    /// `u32::MAX` where the pixel falls outside the frame (or on the template's border).
+    /// Per lattice point, `u32::MAX` where it falls outside the frame (or on the template's
+    /// border).
     idx: Vec<u32>,
     fx: Vec<f32>,
     fy: Vec<f32>,
     /// Frame row length.
     stride: usize,
-    /// Template size.
+    /// Lattice points across and down: the template's size at a step of 1.
     width: usize,
     height: usize,
 }
 
 impl Coords {
-    /// Where `w` sends the template pixels on a lattice of `stride` (the rest fall outside).
+    /// Where `w` sends the template pixels on a lattice of `stride` (every `stride`-th pixel of
+    /// every `stride`-th row).
     fn new(w: &Affine, tw: usize, th: usize, frame: &Plane, stride: usize) -> Coords {
         let mut cs = Coords::default();
         cs.remap(w, tw, th, frame, stride);
@@ -268,38 +272,42 @@ impl Coords {
         map: impl Fn(f64, f64) -> (f64, f64) + Sync,
     ) {
         let (iw, ih) = (frame.width as f32 - 1.0, frame.height as f32 - 1.0);
-        let n = tw * th;
+        let (lw, lh) = (tw.div_ceil(stride), th.div_ceil(stride));
+        let n = lw * lh;
         for v in [&mut self.fx, &mut self.fy] {
             v.clear();
             v.resize(n, 0.0);
         }
         self.idx.clear();
         self.idx.resize(n, u32::MAX);
-        (self.stride, self.width, self.height) = (frame.width, tw, th);
+        (self.stride, self.width, self.height) = (frame.width, lw, lh);
         // Each row written in place: rows made apart and joined were copied twice over.
         self.idx
-            .par_chunks_mut(tw.max(1))
-            .zip(self.fx.par_chunks_mut(tw.max(1)))
-            .zip(self.fy.par_chunks_mut(tw.max(1)))
+            .par_chunks_mut(lw.max(1))
+            .zip(self.fx.par_chunks_mut(lw.max(1)))
+            .zip(self.fy.par_chunks_mut(lw.max(1)))
             .enumerate()
-            .filter(|&(y, _)| y != 0 && y + 1 != th && y % stride == 0)
+            .map(|(ly, row)| (ly * stride, row))
+            .filter(|&(y, _)| y != 0 && y + 1 != th)
             .for_each(|(y, ((idx, fx), fy))| {
-                for x in (stride..tw - 1).step_by(stride) {
+                // The template's border maps nothing.
+                for lx in (1..lw).take_while(|&lx| lx * stride + 1 < tw) {
+                    let x = lx * stride;
                     let (u, v) = map(x as f64, y as f64);
                     let (u, v) = (u as f32, v as f32);
                     if u >= 0.0 && v >= 0.0 && u < iw && v < ih {
                         // Truncation floors a non-negative coordinate, without `floor`'s
                         // library call (baseline x86-64 has no rounding instruction).
                         let (x0, y0) = (u as usize, v as usize);
-                        idx[x] = (y0 * frame.width + x0) as u32;
-                        fx[x] = u - x0 as f32;
-                        fy[x] = v - y0 as f32;
+                        idx[lx] = (y0 * frame.width + x0) as u32;
+                        fx[lx] = u - x0 as f32;
+                        fy[lx] = v - y0 as f32;
                     }
                 }
             });
     }
 
-    /// Bilinear sample of `p` for template pixel `i`, None outside.
+    /// Bilinear sample of `p` for lattice point `i`, None outside.
     #[inline]
     pub fn sample(&self, p: &Plane, i: usize) -> Option<f32> {
         let k = self.idx[i];
@@ -356,14 +364,16 @@ fn gauss_newton(
     // Residuals of the current warp, NaN outside the frame and on the template's border.
     let Scratch { cs, resid, valid } = scratch;
     cs.remap(&fit.w, tw, th, &frame[0], stride);
-    resid.resize(tw * th, 0.0);
-    resid.par_chunks_mut(tw).enumerate().for_each(|(y, row)| {
-        // Off the lattice `cs` maps nothing: those residuals are NaN like any outside the frame.
-        for (x, r) in row.iter_mut().enumerate() {
-            let i = y * tw + x;
+    // Per lattice point, `lw` across: lattice point (lx, ly) is template pixel
+    // (lx, ly) · `stride`.
+    let lw = cs.width;
+    resid.resize(cs.width * cs.height, 0.0);
+    resid.par_chunks_mut(lw).enumerate().for_each(|(ly, row)| {
+        for (lx, r) in row.iter_mut().enumerate() {
+            let (j, i) = (ly * lw + lx, (ly * tw + lx) * stride);
             let img = &frame[layer.map_or(0, |l| l.0[i] as usize)];
             *r = cs
-                .sample(img, i)
+                .sample(img, j)
                 .map_or(f32::NAN, |v| v - gain * view.t[i] - offset);
         }
     });
@@ -380,17 +390,16 @@ fn gauss_newton(
     });
     let (cx, cy) = ((tw as f32 - 1.0) / 2.0, (th as f32 - 1.0) / 2.0);
     let half = tw.max(th) as f32 / 2.0;
-    let (h, b, c) = (0..th)
+    let (h, b, c) = (0..cs.height)
         .into_par_iter()
-        .step_by(stride)
-        .map(|y| {
+        .map(|ly| {
             let mut h = [[0.0f32; N]; N];
             let mut b = [0.0f32; N];
             let mut c = [0.0f64; 6];
-            let ny = (y as f32 - cy) / half;
-            for x in (0..tw).step_by(stride) {
-                let i = y * tw + x;
-                let e = resid[i];
+            let ny = ((ly * stride) as f32 - cy) / half;
+            for lx in 0..lw {
+                let (x, i) = (lx * stride, (ly * tw + lx) * stride);
+                let e = resid[ly * lw + lx];
                 if e.is_nan() {
                     continue;
                 }
