@@ -559,34 +559,70 @@ fn fit_near(
             .collect()
     };
     let near = Plane::from_vec(cw, ch, 1, crop(&lumas[k].data));
-    let fars: Vec<Vec<f32>> = far.iter().map(|&l| crop(&lumas[l].data)).collect();
     let depth_in: Vec<u8> = (y0..=y1)
         .flat_map(|y| inside[y * rw + x0..=y * rw + x1].iter().copied())
         .collect();
+    // The interior deeper than a margin, as runs along rows (start in the crop, start in the
+    // far frames, which are read in place, and length), and each far frame's variance there.
+    // A fit tries some twenty σ but only a few margins, so these are kept per margin.
+    struct Interior {
+        runs: Vec<(usize, usize, usize)>,
+        count: usize,
+        var: Vec<f64>,
+    }
+    let interior = |m: u8| -> Interior {
+        let mut runs = Vec::new();
+        for (y, row) in depth_in.chunks_exact(cw).enumerate() {
+            let mut x = 0;
+            while x < cw {
+                if row[x] <= m {
+                    x += 1;
+                    continue;
+                }
+                let len = row[x..].iter().take_while(|&&d| d > m).count();
+                runs.push((y * cw + x, (y0 + y) * rw + x0 + x, len));
+                x += len;
+            }
+        }
+        let count = runs.iter().map(|r| r.2).sum();
+        let var = far
+            .iter()
+            .map(|&l| {
+                let v = &lumas[l].data;
+                let values = || runs.iter().flat_map(|&(_, j, n)| &v[j..j + n]);
+                let mean = values().map(|&x| x as f64).sum::<f64>() / count as f64;
+                values().map(|&x| (x as f64 - mean).powi(2)).sum()
+            })
+            .collect();
+        Interior { runs, count, var }
+    };
+    let mut interiors: Vec<Option<Interior>> = (0..=u8::MAX).map(|_| None).collect();
     // Each far frame's residual at `sigma`, relative to its variance over the interior: deeper
     // than 3σ, or where a small object has too little of that, than 1.5σ (the background's
     // light then enters the fit's edge a little). Without that second depth the main job's
     // nearest objects, 60-100 px across, were fitted only up to σ 6 px and their spill into
     // the frames focused 2-3 planes behind (σ 4-6) was never un-mixed.
-    let residuals = |sigma: f32| -> Option<Vec<f64>> {
-        let deeper =
-            |m: u8| -> Vec<usize> { (0..depth_in.len()).filter(|&i| depth_in[i] > m).collect() };
-        let idx = Some(deeper(margin(sigma)))
-            .filter(|idx| idx.len() >= MIN_INTERIOR)
-            .or_else(|| Some(deeper(margin(0.5 * sigma))))
-            .filter(|idx| idx.len() >= MIN_INTERIOR)?;
+    let mut residuals = |sigma: f32| -> Option<Vec<f64>> {
+        let m = [margin(sigma), margin(0.5 * sigma)]
+            .into_iter()
+            .find(|&m| {
+                let inner = interiors[m as usize].get_or_insert_with(|| interior(m));
+                inner.count >= MIN_INTERIOR
+            })?;
+        let inner = interiors[m as usize].as_ref()?;
         let blurred = gaussian_blur(&near, sigma / f);
-        let count = idx.len() as f64;
         Some(
-            fars.iter()
-                .map(|v| {
-                    let mean = idx.iter().map(|&i| v[i] as f64).sum::<f64>() / count;
-                    let (mut var, mut err) = (0.0, 0.0);
-                    for &i in &idx {
-                        var += (v[i] as f64 - mean).powi(2);
-                        err += (blurred.data[i] as f64 - v[i] as f64).powi(2);
-                    }
-                    err / var.max(1e-9 * count)
+            far.iter()
+                .zip(&inner.var)
+                .map(|(&l, &var)| {
+                    let v = &lumas[l].data;
+                    let err: f64 = inner
+                        .runs
+                        .iter()
+                        .flat_map(|&(i, j, n)| blurred.data[i..i + n].iter().zip(&v[j..j + n]))
+                        .map(|(&b, &x)| (b as f64 - x as f64).powi(2))
+                        .sum();
+                    err / var.max(1e-9 * inner.count as f64)
                 })
                 .collect(),
         )
