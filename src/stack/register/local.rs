@@ -47,7 +47,7 @@ const ITERATIONS: usize = 8;
 /// settle in one or two steps of the eight; where parallax moves a near object its pixels keep
 /// moving and the level runs on. Measured against always eight (`scripts/bench-quality`,
 /// 2026-12-05): the parallax stacks' PSNR 26.77 → 26.81 and 26.64 → 26.67 dB, the others the
-/// same; the register stage 5–15 % faster on 0.3–1.9 MP stacks. Four fixed steps instead lost
+/// same; the register stage 8–20 % faster on 0.3–1.9 MP stacks. Four fixed steps instead lost
 /// accuracy where a near object moves (tests/register.rs).
 const SETTLED: (f32, f32) = (0.02, 0.01);
 /// Ridge on the increment, relative to the mean gradient energy of the pair: a window with the
