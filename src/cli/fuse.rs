@@ -29,7 +29,8 @@ pub struct FuseArgs {
     /// behind it shows it blurred. Its `order` line says which order it found and on how many
     /// edge pixels; with fewer than 200 or no 2/3 majority of their contrast (a flat subject, a
     /// single plane) it says so and assumes nearest first. The spill removal takes near objects'
-    /// defocus out of the farther frames in the order found (or assumed).
+    /// defocus out of the farther frames in the order found; when the edges tell none it leaves
+    /// the frames as they are (its `spill` line says so).
     #[arg(value_name = "FRAME")]
     pub frames: Vec<PathBuf>,
     /// Frame whose geometry the output takes (0-based; default: the middle frame).

@@ -63,7 +63,8 @@ pub struct Fused<T> {
     /// Per pixel, the frame the output was taken from.
     pub labels: Vec<u8>,
     /// Which way the frames were focused, as their occlusion edges tell (`Order::Unknown` when
-    /// too few edges tell: then nearest first, the documented input order, is assumed).
+    /// too few edges tell: then the composition assumes nearest first, the documented input
+    /// order, and the spill removal does nothing).
     pub order: OrderEvidence,
     /// `None` when the frames were taken as aligned.
     pub alignment: Option<Alignment>,
