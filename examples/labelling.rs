@@ -112,7 +112,13 @@ fn compare(frames: Vec<Image<u8>>, runs: usize, align: bool) -> Result<()> {
         }
         let fused = last.expect("at least one run");
         let (aligned, coverage) = aligned(&frames, &fused, params.reference);
-        let e = labelling_energy(&aligned, &coverage, &fused.labels, &params.graphcut);
+        let e = labelling_energy(
+            &aligned,
+            &coverage,
+            &fused.labels,
+            params.reference as u8,
+            &params.graphcut,
+        );
         let name = match candidates {
             usize::MAX => "exhaustive".to_string(),
             k => k.to_string(),

@@ -20,7 +20,7 @@ fn candidate_labelling_is_within_one_percent_of_exhaustive_on_flats() {
     let label = |params: GraphCutParams| {
         let labels = label_stack(&frames, &coverage, 7, &params, usize::MAX, &NoProgress).labels;
         (
-            labelling_energy(&frames, &coverage, &labels, &params),
+            labelling_energy(&frames, &coverage, &labels, 7, &params),
             labels,
         )
     };
@@ -38,7 +38,7 @@ fn candidate_labelling_is_within_one_percent_of_exhaustive_on_flats() {
     let single = (0..p.frames as u8)
         .map(|l| {
             let params = GraphCutParams::default();
-            labelling_energy(&frames, &coverage, &vec![l; p.width * p.height], &params)
+            labelling_energy(&frames, &coverage, &vec![l; p.width * p.height], 7, &params)
         })
         .min()
         .unwrap();
