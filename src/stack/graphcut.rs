@@ -5,8 +5,8 @@
 //! label change. Solved by α-expansion on a coarse level, then re-solved at full resolution only
 //! in a band around the coarse label boundaries and where the coarse label misses fine detail.
 //!
-//! Each pixel is offered only a few labels: its sharpest frames and the labels it and its
-//! neighbours hold. On smooth or noisy content many frames tie and the sharpest frame changes from
+//! Each pixel is offered only a few labels: its sharpest frames, the fallback frame where it ties
+//! with them, and the labels it and its neighbours hold. On smooth or noisy content many frames tie and the sharpest frame changes from
 //! pixel to pixel, so offering every frame everywhere made the cost grow with frames × pixels;
 //! the labels found this way have the same energy within a fraction of a percent.
 
@@ -784,8 +784,11 @@ fn solve_window<T: Sample>(
 }
 
 /// The expansion moves of a window's grid (`local`, at `(x0, y0)` of a level `width` wide): each
-/// free pixel is offered its `k` sharpest frames and the labels it and its 4 neighbours hold.
-/// In label order; `None` when no pixel is free.
+/// free pixel is offered its `k` sharpest frames, the fallback where that ties with them
+/// ([`GraphCutParams::tie_bias`]), and the labels it and its 4 neighbours hold. Without the
+/// fallback, exhaustive expansion took it over pixels the candidates never offered it (layered
+/// 8 × 1.9 MP: energy 2.4 % above exhaustive expansion's; with it 0.1 %). In label order; `None`
+/// when no pixel is free.
 fn moves<T: Sample>(
     local: &Grid,
     (x0, y0, width): (usize, usize, usize),
@@ -803,7 +806,11 @@ fn moves<T: Sample>(
                 continue;
             }
             any_free = true;
-            level.sharpest((y0 + y) * width + x0 + x, k, &mut top);
+            let at = (y0 + y) * width + x0 + x;
+            level.sharpest(at, k, &mut top);
+            if level.ties(at) {
+                top.push(level.fallback);
+            }
             // The labels offered, as a set of 256 bits: sorting and deduplicating a list of
             // them was a tenth of this function's time.
             let mut offer = [0u64; 4];
