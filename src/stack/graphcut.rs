@@ -50,6 +50,13 @@ pub struct GraphCutParams {
     /// flats, 16 frames, the default labels' energy was 7.5 % above exhaustive expansion's; with
     /// it 0.1 %.
     pub tie_bias: f32,
+    /// Where it is more than the noise floor, frames also tie within this share of the median
+    /// frame's focus amplitude (measured on the coarse level, as the noise's level is smooth):
+    /// under heavy noise a plain region's amplitudes are the noise's, and differ from frame to
+    /// frame by more than the noise floor. There exhaustive expansion still labelled plain
+    /// regions by their noise, which the candidates cannot follow (noisy 10 × 1.2 MP, noise of
+    /// σ 8 levels: the default labels' energy 1.019 of exhaustive expansion's; with this 0.994).
+    pub tie_noise: f32,
     /// Pixel count the coarse level is reduced to.
     pub coarse_pixels: usize,
     /// How many of its sharpest frames a pixel is offered, besides the labels it and its four
@@ -79,6 +86,7 @@ impl Default for GraphCutParams {
             noise_floor: 0.002,
             tie: 1.0,
             tie_bias: 0.5,
+            tie_noise: 0.6,
             coarse_pixels: 60_000,
             candidates: 2,
             max_cycles: 2,
@@ -205,8 +213,8 @@ struct Level<'a, T> {
     /// Integer units per unit of focus cost: channels·MAX/λ, so seam costs stay exact integers.
     unary_scale: f32,
     eps: f32,
-    /// [`GraphCutParams::tie`] in amplitude units.
-    tie: f32,
+    /// What each pixel's frames tie within, in amplitude units.
+    ties: &'a Ties<'a>,
     /// The frame plain regions go to, and what any other costs there
     /// ([`GraphCutParams::tie_bias`]).
     fallback: u8,
@@ -215,11 +223,52 @@ struct Level<'a, T> {
 }
 
 /// What a pixel's focus costs share: the cost per unit of amplitude below the sharpest frame's
-/// (one division a pixel), and what any frame but the fallback pays extra there.
+/// (one division a pixel), the amplitude below it that costs nothing ([`Ties`]), and whether
+/// the fallback ties there (then any other frame pays [`GraphCutParams::tie_bias`]).
 #[derive(Clone, Copy)]
 struct PixelTerms {
     per_amp: f32,
-    others: i32,
+    tie: f32,
+    fallback_ties: bool,
+}
+
+/// What each pixel's frames tie within: the noise floor ([`GraphCutParams::tie`]), or a share
+/// of the median frame's amplitude where that is more ([`GraphCutParams::tie_noise`]). Held at
+/// the coarse level, `factor` times smaller than the level read, `width` pixels wide.
+struct Ties<'m> {
+    map: &'m [u16],
+    coarse_width: usize,
+    factor: usize,
+    width: usize,
+}
+
+impl Ties<'_> {
+    #[inline]
+    fn at(&self, p: usize) -> u16 {
+        let (x, y) = (p % self.width, p / self.width);
+        self.map[y / self.factor * self.coarse_width + x / self.factor]
+    }
+}
+
+/// The map [`Ties`] reads, from every frame's amplitudes at the coarse level. The lower median:
+/// of a few frames the upper one is the second-sharpest, which would tie away real focus (the
+/// 4-frame stack of `tests/fuse_quality.rs` fell below the pyramid baseline).
+fn tie_map(amps: &[Vec<u16>], p: &GraphCutParams) -> Vec<u16> {
+    let floor = p.tie * p.noise_floor * AMP_SCALE;
+    let n = amps.len();
+    let mut map = vec![0u16; amps[0].len()];
+    map.par_chunks_mut(4096).enumerate().for_each(|(k, out)| {
+        let mut v = [0u16; 256];
+        for (j, o) in out.iter_mut().enumerate() {
+            let i = k * 4096 + j;
+            for (x, a) in v.iter_mut().zip(amps) {
+                *x = a[i];
+            }
+            let (_, median, _) = v[..n].select_nth_unstable((n - 1) / 2);
+            *o = (p.tie_noise * *median as f32).max(floor) as u16;
+        }
+    });
+    map
 }
 
 impl<'a, T: Sample> Level<'a, T> {
@@ -229,6 +278,7 @@ impl<'a, T: Sample> Level<'a, T> {
         lambda: f32,
         p: &GraphCutParams,
         fallback: u8,
+        ties: &'a Ties<'a>,
     ) -> Self {
         let channels = images[0].channels;
         let full = channels as f32 * T::MAX;
@@ -238,7 +288,7 @@ impl<'a, T: Sample> Level<'a, T> {
             amps,
             unary_scale: full / lambda,
             eps: p.noise_floor * AMP_SCALE,
-            tie: p.tie * p.noise_floor * AMP_SCALE,
+            ties,
             fallback,
             bias: (p.tie_bias * p.kappa * full).round() as i32,
             kappa: (p.kappa * full).round() as i32,
@@ -295,9 +345,7 @@ impl<'a, T: Sample> Level<'a, T> {
     /// Whether the fallback frame's focus amplitude at `p` ties with the sharpest frame's.
     #[inline]
     fn ties(&self, p: usize) -> bool {
-        let i = p - self.amps.offset;
-        let a = &self.amps;
-        a.max[i] as f32 - a.per_frame[self.fallback as usize][i] as f32 <= self.tie
+        self.pixel_terms(p).fallback_ties
     }
 
     /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
@@ -309,9 +357,13 @@ impl<'a, T: Sample> Level<'a, T> {
     /// The terms every label's focus cost at `p` shares.
     #[inline]
     fn pixel_terms(&self, p: usize) -> PixelTerms {
+        let i = p - self.amps.offset;
+        let m = self.amps.max[i] as f32;
+        let tie = self.ties.at(p) as f32;
         PixelTerms {
-            per_amp: self.unary_scale / (self.amps.max[p - self.amps.offset] as f32 + self.eps),
-            others: if self.ties(p) { self.bias } else { 0 },
+            per_amp: self.unary_scale / (m + self.eps),
+            tie,
+            fallback_ties: m - self.amps.per_frame[self.fallback as usize][i] as f32 <= tie,
         }
     }
 
@@ -322,8 +374,12 @@ impl<'a, T: Sample> Level<'a, T> {
         let i = p - self.amps.offset;
         let m = self.amps.max[i] as f32;
         let a = self.amps.per_frame[l as usize][i] as f32;
-        let other = if l == self.fallback { 0 } else { t.others };
-        ((m - a - self.tie).max(0.0) * t.per_amp) as i32 + other
+        let other = if t.fallback_ties && l != self.fallback {
+            self.bias
+        } else {
+            0
+        };
+        ((m - a - t.tie).max(0.0) * t.per_amp) as i32 + other
     }
 }
 
@@ -367,11 +423,23 @@ pub fn labelling_energy<T: Sample>(
 ) -> i64 {
     let (w, h) = (frames[0].width, frames[0].height);
     let amps = Amps::for_rows(frames, coverage, &p.focus, 0..h);
+    let f = coarse_factor(w * h, p.coarse_pixels);
+    let coarse: Vec<Vec<u16>> = amps
+        .per_frame
+        .iter()
+        .map(|a| downsample_samples(a, w, h, f))
+        .collect();
+    let ties = Ties {
+        map: &tie_map(&coarse, p),
+        coarse_width: w.div_ceil(f),
+        factor: f,
+        width: w,
+    };
     energy(
         w,
         h,
         labels,
-        &Level::new(frames, &amps, p.lambda, p, fallback),
+        &Level::new(frames, &amps, p.lambda, p, fallback, &ties),
     )
 }
 
@@ -519,8 +587,15 @@ pub fn label_stack<T: Sample>(
     };
     let texture = (4.0 * p.noise_floor * AMP_SCALE) as u16;
     if f == 1 {
+        let map = focus.with(0..h, |a| tie_map(&a.per_frame, p));
+        let ties = Ties {
+            map: &map,
+            coarse_width: w,
+            factor: 1,
+            width: w,
+        };
         let (mut labels, textured) = focus.with(0..h, |a| {
-            let labels = Level::new(frames, a, p.lambda, p, fallback).start_labels(w * h);
+            let labels = Level::new(frames, a, p.lambda, p, fallback, &ties).start_labels(w * h);
             (labels, a.max.iter().map(|&m| m > texture).collect())
         });
         let solve = Solve {
@@ -529,6 +604,7 @@ pub fn label_stack<T: Sample>(
             lambda: p.lambda,
             params: p,
             fallback,
+            ties: &ties,
         };
         solve.tiled(w, h, &mut labels, None, 256, 2, progress);
         keep_covered(&mut labels, w, coverage, fallback);
@@ -539,7 +615,21 @@ pub fn label_stack<T: Sample>(
     let small: Vec<Image<T>> = frames.par_iter().map(|i| downsample_area(i, f)).collect();
     let (cw, ch) = (small[0].width, small[0].height);
     let camps = Amps::new(0, camps);
-    let coarse = Level::new(&small, &camps, p.lambda / f as f32, p, fallback);
+    let map = tie_map(&camps.per_frame, p);
+    let coarse_ties = Ties {
+        map: &map,
+        coarse_width: cw,
+        factor: 1,
+        width: cw,
+    };
+    let coarse = Level::new(
+        &small,
+        &camps,
+        p.lambda / f as f32,
+        p,
+        fallback,
+        &coarse_ties,
+    );
     let mut clabels = coarse.start_labels(cw * ch);
     let solve = Solve {
         frames: &small,
@@ -547,6 +637,7 @@ pub fn label_stack<T: Sample>(
         lambda: p.lambda / f as f32,
         params: p,
         fallback,
+        ties: &coarse_ties,
     };
     solve.tiled(cw, ch, &mut clabels, None, 64, 2, progress);
 
@@ -578,12 +669,19 @@ pub fn label_stack<T: Sample>(
                 });
         });
     }
+    let ties = Ties {
+        map: &map,
+        coarse_width: cw,
+        factor: f,
+        width: w,
+    };
     let solve = Solve {
         frames,
         focus: &focus,
         lambda: p.lambda,
         params: p,
         fallback,
+        ties: &ties,
     };
     solve.tiled(w, h, &mut labels, Some(&free), 64, 2, progress);
     keep_covered(&mut labels, w, coverage, fallback);
@@ -622,6 +720,7 @@ struct Solve<'a, T> {
     params: &'a GraphCutParams,
     /// The frame plain regions go to ([`GraphCutParams::tie_bias`]).
     fallback: u8,
+    ties: &'a Ties<'a>,
 }
 
 impl<T: Sample> Solve<'_, T> {
@@ -703,8 +802,14 @@ impl<T: Sample> Solve<'_, T> {
                 let y1 = band.iter().map(|v| v.y0 + v.h).max().unwrap_or(h);
                 let rows = first.y0.saturating_sub(1)..(y1 + 1).min(h);
                 self.focus.with(rows, |amps| {
-                    let level =
-                        Level::new(self.frames, amps, self.lambda, self.params, self.fallback);
+                    let level = Level::new(
+                        self.frames,
+                        amps,
+                        self.lambda,
+                        self.params,
+                        self.fallback,
+                        self.ties,
+                    );
                     results.par_extend(
                         band.par_iter()
                             .map_init(GridMaxflow::new, |solver, &win| {
@@ -844,7 +949,10 @@ mod tests {
         let amps = [3u16, 7, 7, 1, 9];
         let frames: Vec<Image<u8>> = amps.iter().map(|_| Image::new(1, 1, 1)).collect();
         let amps = Amps::new(0, amps.iter().map(|&a| vec![a]).collect());
-        let level = Level::new(&frames, &amps, 0.3, &GraphCutParams::default(), 0);
+        let p = GraphCutParams::default();
+        let map = tie_map(&amps.per_frame, &p);
+        let ties = whole(&map, 1);
+        let level = Level::new(&frames, &amps, 0.3, &p, 0, &ties);
         let mut top = Vec::new();
         for (k, want) in [
             (1, vec![4]),
@@ -858,21 +966,52 @@ mod tests {
         }
     }
 
-    /// A frame within the tie band below the sharpest costs nothing, and labelling starts from
-    /// the fallback frame there; just outside it, the fallback costs and the sharpest starts.
+    /// [`Ties`] over a whole level `width` pixels wide.
+    fn whole(map: &[u16], width: usize) -> Ties<'_> {
+        Ties {
+            map,
+            coarse_width: width,
+            factor: 1,
+            width,
+        }
+    }
+
+    /// A frame within the noise floor below the sharpest costs nothing, and labelling starts
+    /// from the fallback frame there; just outside it, the fallback costs and the sharpest
+    /// starts. (Three frames see nothing, so the median frame's amplitude widens no tie.)
     #[test]
     fn frames_within_the_noise_tie_cost_nothing_and_start_from_the_fallback() {
         let p = GraphCutParams::default();
         let tie = (p.tie * p.noise_floor * AMP_SCALE) as u16;
-        let frames: Vec<Image<u8>> = (0..2).map(|_| Image::new(2, 1, 1)).collect();
-        let amps = Amps::new(
-            0,
-            vec![vec![1000, 1000], vec![1000 - tie + 1, 1000 - tie - 2]],
-        );
-        let level = Level::new(&frames, &amps, p.lambda, &p, 1);
+        let frames: Vec<Image<u8>> = (0..5).map(|_| Image::new(2, 1, 1)).collect();
+        let mut amps = vec![vec![1000, 1000], vec![1000 - tie + 1, 1000 - tie - 2]];
+        amps.extend([vec![0, 0], vec![0, 0], vec![0, 0]]);
+        let amps = Amps::new(0, amps);
+        let map = tie_map(&amps.per_frame, &p);
+        let ties = whole(&map, 2);
+        let level = Level::new(&frames, &amps, p.lambda, &p, 1, &ties);
         assert_eq!(level.unary(0, 1), 0);
         assert!(level.unary(1, 1) > 0);
         assert_eq!(level.start_labels(2), [1, 0]);
+    }
+
+    /// Where every frame's amplitude is high, as under heavy noise, frames tie within a share of
+    /// the median frame's: 300 below the sharpest costs nothing at a median of 800, and costs
+    /// without that share.
+    #[test]
+    fn heavy_noise_widens_the_tie() {
+        let frames: Vec<Image<u8>> = (0..3).map(|_| Image::new(1, 1, 1)).collect();
+        let amps = Amps::new(0, vec![vec![1000], vec![700], vec![800]]);
+        let cost = |p: GraphCutParams| {
+            let map = tie_map(&amps.per_frame, &p);
+            Level::new(&frames, &amps, p.lambda, &p, 1, &whole(&map, 1)).unary(0, 1)
+        };
+        assert_eq!(cost(GraphCutParams::default()), 0);
+        let floor_only = GraphCutParams {
+            tie_noise: 0.0,
+            ..GraphCutParams::default()
+        };
+        assert!(cost(floor_only) > 0);
     }
 
     /// Three frames of one plain grey surface, each with its own noise: no frame is sharper, so
@@ -901,6 +1040,7 @@ mod tests {
         let with_tie = share(&GraphCutParams::default());
         let without = share(&GraphCutParams {
             tie: 0.0,
+            tie_noise: 0.0,
             ..GraphCutParams::default()
         });
         assert!(
