@@ -6,9 +6,10 @@
 //! in a band around the coarse label boundaries and where the coarse label misses fine detail.
 //!
 //! Each pixel is offered only a few labels: its sharpest frames, the fallback frame where it ties
-//! with them, and the labels it and its neighbours hold. On smooth or noisy content many frames tie and the sharpest frame changes from
-//! pixel to pixel, so offering every frame everywhere made the cost grow with frames × pixels;
-//! the labels found this way have the same energy within a fraction of a percent.
+//! with them, and the labels it and its neighbours hold. On smooth or noisy content many frames
+//! tie and the sharpest frame changes from pixel to pixel, so offering every frame everywhere made
+//! the cost grow with frames × pixels; the labels found this way have the same energy within a
+//! fraction of a percent.
 
 use super::align::Coverage;
 use super::blur::{downsample_area, downsample_samples};
@@ -36,7 +37,7 @@ pub struct GraphCutParams {
     /// focus cost that is 80–130 seam units against about 20 for a seam there, so the noise
     /// picked the frame pixel by pixel. That labelled plain regions like salt and pepper, made
     /// the output noisier there than any frame (picking, at each pixel, the frame whose noise
-    /// has the most detail: flats 8's green +25 %), and kept the expansion moving on them
+    /// has the most detail: flats 8's green fine noise 32 % above a frame's), and kept the expansion moving on them
     /// (86 % of flats 8's full-resolution pixels free, 5.4 pixel-moves a pixel). At the noise
     /// floor, with [`Self::tie_bias`], the label stage took flats 8 460 → 100 ms, amber_macro
     /// 690 → 300 ms, ring_macro 440 → 140 ms (medians of 3 interleaved runs), and the
