@@ -214,11 +214,10 @@ struct Level<'a, T> {
     /// Integer units per unit of focus cost: channels·MAX/λ, so seam costs stay exact integers.
     unary_scale: f32,
     eps: f32,
-    /// What each pixel's frames tie within, in amplitude units.
+    /// What each pixel's frames tie within, in amplitude units, and the frame ties go to.
     ties: &'a Ties<'a>,
-    /// The frame plain regions go to, and what any other costs there
+    /// What any frame but the fallback costs where the fallback ties
     /// ([`GraphCutParams::tie_bias`]).
-    fallback: u8,
     bias: i32,
     kappa: i32,
 }
@@ -234,16 +233,34 @@ struct PixelTerms {
 }
 
 /// What each pixel's frames tie within: the noise floor ([`GraphCutParams::tie`]), or a share
-/// of the median frame's amplitude where that is more ([`GraphCutParams::tie_noise`]). Held at
-/// the coarse level, `factor` times smaller than the level read, `width` pixels wide.
+/// of the median frame's amplitude where that is more ([`GraphCutParams::tie_noise`]); and the
+/// frame ties go to ([`GraphCutParams::tie_bias`]). The map is held at the coarse level,
+/// `factor` times smaller than the level read, `width` pixels wide.
 struct Ties<'m> {
     map: &'m [u16],
     coarse_width: usize,
     factor: usize,
     width: usize,
+    fallback: u8,
 }
 
-impl Ties<'_> {
+impl<'m> Ties<'m> {
+    /// Ties read from `map`, `factor` times smaller than a level `width` pixels wide.
+    fn scaled(map: &'m [u16], factor: usize, width: usize, fallback: u8) -> Self {
+        Self {
+            map,
+            coarse_width: width.div_ceil(factor),
+            factor,
+            width,
+            fallback,
+        }
+    }
+
+    /// Ties read from `map` at the level's own size.
+    fn whole(map: &'m [u16], width: usize, fallback: u8) -> Self {
+        Self::scaled(map, 1, width, fallback)
+    }
+
     #[inline]
     fn at(&self, p: usize) -> u16 {
         let (x, y) = (p % self.width, p / self.width);
@@ -278,7 +295,6 @@ impl<'a, T: Sample> Level<'a, T> {
         amps: &'a Amps,
         lambda: f32,
         p: &GraphCutParams,
-        fallback: u8,
         ties: &'a Ties<'a>,
     ) -> Self {
         let channels = images[0].channels;
@@ -290,7 +306,6 @@ impl<'a, T: Sample> Level<'a, T> {
             unary_scale: full / lambda,
             eps: p.noise_floor * AMP_SCALE,
             ties,
-            fallback,
             bias: (p.tie_bias * p.kappa * full).round() as i32,
             kappa: (p.kappa * full).round() as i32,
         }
@@ -329,7 +344,7 @@ impl<'a, T: Sample> Level<'a, T> {
         (0..pixels)
             .map(|i| {
                 if self.ties(i) {
-                    return self.fallback;
+                    return self.ties.fallback;
                 }
                 self.sharpest(i, 1, &mut top);
                 top[0]
@@ -346,7 +361,15 @@ impl<'a, T: Sample> Level<'a, T> {
     /// Whether the fallback frame's focus amplitude at `p` ties with the sharpest frame's.
     #[inline]
     fn ties(&self, p: usize) -> bool {
-        self.pixel_terms(p).fallback_ties
+        self.fallback_within(p - self.amps.offset, self.ties.at(p) as f32)
+    }
+
+    /// Whether the fallback frame's focus amplitude at amplitude index `i` is within `tie` of
+    /// the sharpest frame's.
+    #[inline]
+    fn fallback_within(&self, i: usize, tie: f32) -> bool {
+        let m = self.amps.max[i] as f32;
+        m - self.amps.per_frame[self.ties.fallback as usize][i] as f32 <= tie
     }
 
     /// Focus cost of label `l` at `p`, in the integer units of the seam cost.
@@ -364,7 +387,7 @@ impl<'a, T: Sample> Level<'a, T> {
         PixelTerms {
             per_amp: self.unary_scale / (m + self.eps),
             tie,
-            fallback_ties: m - self.amps.per_frame[self.fallback as usize][i] as f32 <= tie,
+            fallback_ties: self.fallback_within(i, tie),
         }
     }
 
@@ -375,7 +398,7 @@ impl<'a, T: Sample> Level<'a, T> {
         let i = p - self.amps.offset;
         let m = self.amps.max[i] as f32;
         let a = self.amps.per_frame[l as usize][i] as f32;
-        let other = if t.fallback_ties && l != self.fallback {
+        let other = if t.fallback_ties && l != self.ties.fallback {
             self.bias
         } else {
             0
@@ -430,18 +453,9 @@ pub fn labelling_energy<T: Sample>(
         .iter()
         .map(|a| downsample_samples(a, w, h, f))
         .collect();
-    let ties = Ties {
-        map: &tie_map(&coarse, p),
-        coarse_width: w.div_ceil(f),
-        factor: f,
-        width: w,
-    };
-    energy(
-        w,
-        h,
-        labels,
-        &Level::new(frames, &amps, p.lambda, p, fallback, &ties),
-    )
+    let map = tie_map(&coarse, p);
+    let ties = Ties::scaled(&map, f, w, fallback);
+    energy(w, h, labels, &Level::new(frames, &amps, p.lambda, p, &ties))
 }
 
 /// One tile's problem gathered into contiguous memory: the costs of the few labels worth trying,
@@ -589,14 +603,9 @@ pub fn label_stack<T: Sample>(
     let texture = (4.0 * p.noise_floor * AMP_SCALE) as u16;
     if f == 1 {
         let map = focus.with(0..h, |a| tie_map(&a.per_frame, p));
-        let ties = Ties {
-            map: &map,
-            coarse_width: w,
-            factor: 1,
-            width: w,
-        };
+        let ties = Ties::whole(&map, w, fallback);
         let (mut labels, textured) = focus.with(0..h, |a| {
-            let labels = Level::new(frames, a, p.lambda, p, fallback, &ties).start_labels(w * h);
+            let labels = Level::new(frames, a, p.lambda, p, &ties).start_labels(w * h);
             (labels, a.max.iter().map(|&m| m > texture).collect())
         });
         let solve = Solve {
@@ -604,7 +613,6 @@ pub fn label_stack<T: Sample>(
             focus: &focus,
             lambda: p.lambda,
             params: p,
-            fallback,
             ties: &ties,
         };
         solve.tiled(w, h, &mut labels, None, 256, 2, progress);
@@ -617,27 +625,14 @@ pub fn label_stack<T: Sample>(
     let (cw, ch) = (small[0].width, small[0].height);
     let camps = Amps::new(0, camps);
     let map = tie_map(&camps.per_frame, p);
-    let coarse_ties = Ties {
-        map: &map,
-        coarse_width: cw,
-        factor: 1,
-        width: cw,
-    };
-    let coarse = Level::new(
-        &small,
-        &camps,
-        p.lambda / f as f32,
-        p,
-        fallback,
-        &coarse_ties,
-    );
+    let coarse_ties = Ties::whole(&map, cw, fallback);
+    let coarse = Level::new(&small, &camps, p.lambda / f as f32, p, &coarse_ties);
     let mut clabels = coarse.start_labels(cw * ch);
     let solve = Solve {
         frames: &small,
         focus: &Focus::<T>::Whole(&camps),
         lambda: p.lambda / f as f32,
         params: p,
-        fallback,
         ties: &coarse_ties,
     };
     solve.tiled(cw, ch, &mut clabels, None, 64, 2, progress);
@@ -670,18 +665,12 @@ pub fn label_stack<T: Sample>(
                 });
         });
     }
-    let ties = Ties {
-        map: &map,
-        coarse_width: cw,
-        factor: f,
-        width: w,
-    };
+    let ties = Ties::scaled(&map, f, w, fallback);
     let solve = Solve {
         frames,
         focus: &focus,
         lambda: p.lambda,
         params: p,
-        fallback,
         ties: &ties,
     };
     solve.tiled(w, h, &mut labels, Some(&free), 64, 2, progress);
@@ -719,8 +708,6 @@ struct Solve<'a, T> {
     focus: &'a Focus<'a, T>,
     lambda: f32,
     params: &'a GraphCutParams,
-    /// The frame plain regions go to ([`GraphCutParams::tie_bias`]).
-    fallback: u8,
     ties: &'a Ties<'a>,
 }
 
@@ -803,14 +790,7 @@ impl<T: Sample> Solve<'_, T> {
                 let y1 = band.iter().map(|v| v.y0 + v.h).max().unwrap_or(h);
                 let rows = first.y0.saturating_sub(1)..(y1 + 1).min(h);
                 self.focus.with(rows, |amps| {
-                    let level = Level::new(
-                        self.frames,
-                        amps,
-                        self.lambda,
-                        self.params,
-                        self.fallback,
-                        self.ties,
-                    );
+                    let level = Level::new(self.frames, amps, self.lambda, self.params, self.ties);
                     results.par_extend(
                         band.par_iter()
                             .map_init(GridMaxflow::new, |solver, &win| {
@@ -915,7 +895,7 @@ fn moves<T: Sample>(
             let at = (y0 + y) * width + x0 + x;
             level.sharpest(at, k, &mut top);
             if level.ties(at) {
-                top.push(level.fallback);
+                top.push(level.ties.fallback);
             }
             // The labels offered, as a set of 256 bits: sorting and deduplicating a list of
             // them was a tenth of this function's time.
@@ -952,8 +932,8 @@ mod tests {
         let amps = Amps::new(0, amps.iter().map(|&a| vec![a]).collect());
         let p = GraphCutParams::default();
         let map = tie_map(&amps.per_frame, &p);
-        let ties = whole(&map, 1);
-        let level = Level::new(&frames, &amps, 0.3, &p, 0, &ties);
+        let ties = Ties::whole(&map, 1, 0);
+        let level = Level::new(&frames, &amps, 0.3, &p, &ties);
         let mut top = Vec::new();
         for (k, want) in [
             (1, vec![4]),
@@ -964,16 +944,6 @@ mod tests {
         ] {
             level.sharpest(0, k, &mut top);
             assert_eq!(top, want, "k = {k}");
-        }
-    }
-
-    /// [`Ties`] over a whole level `width` pixels wide.
-    fn whole(map: &[u16], width: usize) -> Ties<'_> {
-        Ties {
-            map,
-            coarse_width: width,
-            factor: 1,
-            width,
         }
     }
 
@@ -989,8 +959,8 @@ mod tests {
         amps.extend([vec![0, 0], vec![0, 0], vec![0, 0]]);
         let amps = Amps::new(0, amps);
         let map = tie_map(&amps.per_frame, &p);
-        let ties = whole(&map, 2);
-        let level = Level::new(&frames, &amps, p.lambda, &p, 1, &ties);
+        let ties = Ties::whole(&map, 2, 1);
+        let level = Level::new(&frames, &amps, p.lambda, &p, &ties);
         assert_eq!(level.unary(0, 1), 0);
         assert!(level.unary(1, 1) > 0);
         assert_eq!(level.start_labels(2), [1, 0]);
@@ -1005,7 +975,7 @@ mod tests {
         let amps = Amps::new(0, vec![vec![1000], vec![700], vec![800]]);
         let cost = |p: GraphCutParams| {
             let map = tie_map(&amps.per_frame, &p);
-            Level::new(&frames, &amps, p.lambda, &p, 1, &whole(&map, 1)).unary(0, 1)
+            Level::new(&frames, &amps, p.lambda, &p, &Ties::whole(&map, 1, 1)).unary(0, 1)
         };
         assert_eq!(cost(GraphCutParams::default()), 0);
         let floor_only = GraphCutParams {
