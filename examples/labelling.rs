@@ -8,8 +8,9 @@
 //! spill removal is off: it moves labels afterwards on colour evidence the energy does not hold
 //! (on ring_macro the ratio was 1.069 with it, 0.976 without).
 //!
-//! `labelling flats DIR [--frames N] [--width W] [--height H] [--seed S] [--noise SIGMA]`: writes
-//! a flats stack (`focusd::sim::flats`: smooth regions plus noise where many frames tie) as
+//! `labelling flats DIR [--frames N] [--width W] [--height H] [--seed S] [--noise SIGMA]
+//! [--patches N]`: writes a flats stack (`focusd::sim::flats`: smooth regions plus noise where
+//! many frames tie; two textured patches a frame unless `--patches` says how many) as
 //! DIR/frame_NN.png. `compare` takes the same options for the stack it generates.
 
 use anyhow::{bail, Context, Result};
@@ -26,7 +27,7 @@ use std::time::Instant;
 
 const USAGE: &str = "usage: labelling compare [--runs N] [--no-align] [FRAME...] | \
                      labelling flats DIR [--frames N] [--width W] [--height H] [--seed S] \
-                     [--noise SIGMA]";
+                     [--noise SIGMA] [--patches N]";
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
@@ -35,7 +36,7 @@ fn main() -> Result<()> {
     let (mut paths, mut no_align) = (Vec::new(), false);
     while let Some(a) = args.next() {
         match a.as_str() {
-            "--runs" | "--frames" | "--width" | "--height" | "--seed" | "--noise" => {
+            "--runs" | "--frames" | "--width" | "--height" | "--seed" | "--noise" | "--patches" => {
                 let v = args.next().context(USAGE)?;
                 numbers.push((a, v.parse::<f64>().context(USAGE)?));
             }
@@ -44,19 +45,21 @@ fn main() -> Result<()> {
             _ => paths.push(PathBuf::from(a)),
         }
     }
-    let number = |name: &str, default: f64| {
+    let given = |name: &str| {
         numbers
             .iter()
             .rev()
             .find(|(n, _)| n == name)
-            .map_or(default, |&(_, v)| v)
+            .map(|&(_, v)| v)
     };
+    let number = |name: &str, default: f64| given(name).unwrap_or(default);
     let generated = |frames| FlatsParams {
         width: number("--width", 1152.0) as usize,
         height: number("--height", 864.0) as usize,
         frames: number("--frames", frames) as usize,
         seed: number("--seed", 1.0) as u64,
         noise_sigma: number("--noise", FlatsParams::default().noise_sigma.into()) as f32,
+        patches: given("--patches").map(|v| v as usize),
         ..FlatsParams::default()
     };
     match command.as_str() {

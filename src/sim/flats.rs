@@ -24,6 +24,12 @@ pub struct FlatsParams {
     pub noise_sigma: f32,
     /// Defocus sigma (px) of a patch one frame away from its focus.
     pub blur_per_frame: f32,
+    /// Textured patches, the k-th in focus in frame k mod `frames`; `None`: two per frame. The
+    /// patches are drawn in the same order whatever the frame count, so a stack of 25 frames
+    /// with the 16 patches of an 8-frame stack shows the same scene: what the labelling's
+    /// growth with the frame count is measured on (`scripts/bench-report`), apart from the
+    /// growth with the depth steps that more patches bring.
+    pub patches: Option<usize>,
 }
 
 impl Default for FlatsParams {
@@ -35,6 +41,7 @@ impl Default for FlatsParams {
             seed: 1,
             noise_sigma: 2.0,
             blur_per_frame: 1.5,
+            patches: None,
         }
     }
 }
@@ -111,7 +118,7 @@ pub fn flats(p: &FlatsParams) -> Vec<Image<u8>> {
         .collect()
 }
 
-/// The noise-free smooth field (RGB, f32) and the patches, two per frame.
+/// The noise-free smooth field (RGB, f32) and the patches ([`FlatsParams::patches`]).
 fn scene(p: &FlatsParams) -> (Vec<f32>, Vec<Patch>) {
     let mut rng = Rng::stream(p.seed, 0);
     let (w, h) = (p.width as f64, p.height as f64);
@@ -148,7 +155,7 @@ fn scene(p: &FlatsParams) -> (Vec<f32>, Vec<Patch>) {
         }
     }
     let frames = p.frames.max(1);
-    let patches = (0..2 * frames)
+    let patches = (0..p.patches.unwrap_or(2 * frames))
         .map(|k| Patch {
             cx: rng.range(0.0, w) as f32,
             cy: rng.range(0.0, h) as f32,
@@ -237,5 +244,28 @@ mod tests {
             (rms - expected).abs() < 0.2 * expected,
             "rms {rms}, expected {expected}"
         );
+    }
+
+    /// Given as many patches as a stack of fewer frames has, a longer stack shows that stack's
+    /// scene: the same patches in the same places, each in focus in the frame of its index.
+    #[test]
+    fn the_same_patches_are_the_same_scene_whatever_the_frame_count() {
+        let short = FlatsParams {
+            frames: 8,
+            ..FlatsParams::default()
+        };
+        let long = FlatsParams {
+            frames: 25,
+            patches: Some(16),
+            ..FlatsParams::default()
+        };
+        let ((field_s, s), (field_l, l)) = (scene(&short), scene(&long));
+        assert_eq!(field_s, field_l);
+        assert_eq!((s.len(), l.len()), (16, 16));
+        for (k, (a, b)) in s.iter().zip(&l).enumerate() {
+            assert_eq!((a.cx, a.cy, a.r, &a.waves), (b.cx, b.cy, b.r, &b.waves));
+            assert_eq!((a.focus, b.focus), (k % 8, k));
+        }
+        assert_eq!(scene(&FlatsParams::default()).1.len(), 32, "two a frame");
     }
 }
