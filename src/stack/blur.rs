@@ -8,6 +8,7 @@
 
 use super::image::{Image, Plane, Sample};
 use rayon::prelude::*;
+use std::cell::RefCell;
 
 /// Normalised Gaussian taps, radius ⌈3σ⌉.
 pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
@@ -123,6 +124,51 @@ pub(crate) struct LumaRows<'a, T> {
 impl<T: Sample> Rows for LumaRows<'_, T> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
         self.image.luma_row(self.first + y, out);
+    }
+}
+
+/// The last `slots` rows a source made, kept for several readers ([`Cached`]) that each ask for
+/// every row in turn: the focus measure's two blurs read the same luma rows. Made once instead
+/// of twice (and the frame read from memory once), flats 25 × 1.2 MP labels in 213 ms instead
+/// of 225 (median of 5 interleaved runs), the same amplitudes to the bit.
+pub(crate) struct RowCache<S> {
+    src: S,
+    w: usize,
+    rows: Vec<f32>,
+    /// The row each slot holds, `usize::MAX` when empty; row y lives in slot y % slots.
+    held: Vec<usize>,
+}
+
+impl<S: Rows> RowCache<S> {
+    /// Readers may fall up to `slots` − 1 rows behind the row most recently made without a row
+    /// being made twice.
+    pub(crate) fn new(src: S, w: usize, slots: usize) -> Self {
+        Self {
+            src,
+            w,
+            rows: vec![0.0; w * slots],
+            held: vec![usize::MAX; slots],
+        }
+    }
+
+    fn row(&mut self, y: usize, out: &mut [f32]) {
+        let slot = y % self.held.len();
+        let row = &mut self.rows[slot * self.w..][..self.w];
+        if self.held[slot] != y {
+            self.src.row(y, row);
+            self.held[slot] = y;
+        }
+        out.copy_from_slice(row);
+    }
+}
+
+/// One reader of a [`RowCache`].
+#[derive(Clone, Copy)]
+pub(crate) struct Cached<'c, S>(pub &'c RefCell<RowCache<S>>);
+
+impl<S: Rows> Rows for Cached<'_, S> {
+    fn row(&mut self, y: usize, out: &mut [f32]) {
+        self.0.borrow_mut().row(y, out);
     }
 }
 

@@ -1,8 +1,11 @@
 //! Per-pixel focus measure: local energy of a difference of Gaussians (the paper's unary term).
 
-use super::blur::{gaussian_half, par_strips, LumaRows, PlaneRows, RowBlur, Rows};
+use super::blur::{
+    gaussian_half, par_strips, Cached, LumaRows, PlaneRows, RowBlur, RowCache, Rows,
+};
 use super::image::{Image, Plane, Sample};
 use rayon::prelude::*;
+use std::cell::RefCell;
 use std::ops::Range;
 
 /// Focus measure settings, in pixels of the frame.
@@ -66,9 +69,13 @@ fn amplitude<S: Rows + Copy + Sync>(src: S, w: usize, h: usize, p: &FocusParams)
     );
     let mut amp = vec![0u16; w * h];
     par_strips(&mut amp, w, h, |y0, strip| {
+        // Both blurs read each source row; the wider one reads it first, the other at most
+        // `slots` − 1 rows later (at a strip's first row, all within its reach at once).
+        let slots = 2 * fine.len().max(coarse.len()) - 1;
+        let rows = RefCell::new(RowCache::new(src, w, slots));
         let dog = DogSquared {
-            fine: RowBlur::new(src, w, h, &fine),
-            coarse: RowBlur::new(src, w, h, &coarse),
+            fine: RowBlur::new(Cached(&rows), w, h, &fine),
+            coarse: RowBlur::new(Cached(&rows), w, h, &coarse),
             tmp: vec![0.0; w],
         };
         let mut energy = RowBlur::new(dog, w, h, &window);
