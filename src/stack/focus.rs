@@ -69,8 +69,9 @@ fn amplitude<S: Rows + Copy + Sync>(src: S, w: usize, h: usize, p: &FocusParams)
     );
     let mut amp = vec![0u16; w * h];
     par_strips(&mut amp, w, h, |y0, strip| {
-        // Both blurs read each source row; the wider one reads it first, the other at most
-        // `slots` − 1 rows later (at a strip's first row, all within its reach at once).
+        // Both blurs read each source row: the coarse (wider) one first, which asks for the
+        // rows in order, the fine one at most `slots` − 1 rows later (at a strip's first row,
+        // all within the coarse blur's reach at once).
         let slots = 2 * fine.len().max(coarse.len()) - 1;
         let rows = RefCell::new(RowCache::new(src, w, slots));
         let dog = DogSquared {
@@ -103,7 +104,8 @@ fn quantise(v: f32) -> u16 {
     ((r.to_bits() & 0x7f_ffff) + tie_down) as u16
 }
 
-/// Rows of the squared difference of two blurs of the same source.
+/// Rows of the squared difference of two blurs of the same source. The coarse blur reads each
+/// row first (see [`amplitude`]'s cache).
 struct DogSquared<'k, S> {
     fine: RowBlur<'k, S>,
     coarse: RowBlur<'k, S>,
@@ -112,8 +114,8 @@ struct DogSquared<'k, S> {
 
 impl<S: Rows> Rows for DogSquared<'_, S> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
-        self.fine.row(y, out);
         self.coarse.row(y, &mut self.tmp);
+        self.fine.row(y, out);
         for (f, c) in out.iter_mut().zip(&self.tmp) {
             *f = (*f - c) * (*f - c);
         }
