@@ -3,6 +3,9 @@ mod cli;
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
+#[global_allocator]
+static ALLOCATOR: focusd::malloc::HugePages = focusd::malloc::HugePages;
+
 /// Hand-held focus stacking for Linux phones.
 #[derive(Parser, Debug)]
 #[command(version, about)]
