@@ -45,11 +45,14 @@ pub fn release_freed_memory() {
 /// (`madvise(MADV_HUGEPAGE)`) before it is first touched. Frames and planes are mapped afresh
 /// for each stage (see [`tune`]) and faulted in 4 KiB at a time: a 3 × 5.5 MP fuse
 /// (cuisine_phone) took 186k page faults, 30 % of its CPU in the kernel; with 2 MiB pages 57k,
-/// and its wall time fell 1.03 → 0.89 s (amber_macro 0.96 → 0.89, flats 25 0.60 → 0.57; the
-/// 1.9–3.1 MP synthetic stacks, whose faults are mostly in smaller buffers, unchanged), peak
-/// RSS unchanged. Kernels that default to `madvise` for huge pages (Debian's) give them only
-/// when asked; where there are none the call fails and nothing changes, and where memory is
-/// too fragmented for one the kernel falls back to small pages. glibc can do the same
+/// and its wall time fell 7–14 % (two sets of interleaved runs, 1.12 → 1.04 and 1.03 → 0.89 s;
+/// amber_macro 3–7 %, flats 25 5 %), peak RSS unchanged. The 1.9–3.1 MP synthetic stacks are
+/// not faster: their faults fell by a fifth (layered 153k → 120k), and where the rest are
+/// taken is not yet known (padding the 1–4 MiB buffers to whole huge pages did not lower them).
+///
+/// Kernels that default to `madvise` for huge pages (Debian's) give them only when asked; where
+/// there are none the call fails and nothing changes, and where memory is too fragmented for
+/// one the kernel falls back to small pages. glibc can do the same
 /// (`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`), but only from the environment the process started
 /// in; no allocator crate offers it for the system allocator.
 pub struct HugePages;
