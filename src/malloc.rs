@@ -47,8 +47,10 @@ pub fn release_freed_memory() {
 /// (cuisine_phone) took 186k page faults, 30 % of its CPU in the kernel; with 2 MiB pages 57k,
 /// and its wall time fell 7–14 % (two sets of interleaved runs, 1.12 → 1.04 and 1.03 → 0.89 s;
 /// amber_macro 3–7 %, flats 25 5 %), peak RSS unchanged. The 1.9–3.1 MP synthetic stacks are
-/// not faster: their faults fell by a fifth (layered 153k → 120k), and where the rest are
-/// taken is not yet known (padding the 1–4 MiB buffers to whole huge pages did not lower them).
+/// not faster: their faults fell by a fifth (layered 153k → 120k). Most of the rest are in the
+/// worker threads' glibc arenas, whose buffers under 1 MiB are freed, trimmed and faulted in
+/// again; a trim threshold of 32 MiB took layered to 83k faults but its peak RSS 158 → 199 MB,
+/// for no measurable time.
 ///
 /// Kernels that default to `madvise` for huge pages (Debian's) give them only when asked; where
 /// there are none the call fails and nothing changes, and where memory is too fragmented for
