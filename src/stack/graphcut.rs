@@ -39,10 +39,10 @@ pub struct GraphCutParams {
     /// the output noisier there than any frame (picking, at each pixel, the frame whose noise
     /// has the most detail: flats 8's green fine noise 32 % above a frame's), and kept the
     /// expansion moving on them (86 % of flats 8's full-resolution pixels free, 5.4 pixel-moves
-    /// a pixel). At the noise
-    /// floor, with [`Self::tie_bias`], the label stage took flats 8 460 → 100 ms, amber_macro
-    /// 690 → 300 ms, ring_macro 440 → 140 ms (medians of 3 interleaved runs), and the
-    /// simulated stacks' PSNR against their truth moved by at most 0.03 dB.
+    /// a pixel). At the noise floor, with [`Self::tie_bias`], the label stage took flats 8
+    /// 460 → 100 ms, amber_macro 690 → 300 ms, ring_macro 440 → 140 ms (medians of 3
+    /// interleaved runs), and the simulated stacks' PSNR against their truth moved by at most
+    /// 0.03 dB.
     pub tie: f32,
     /// Focus cost, in [`Self::kappa`]'s units, of every frame but the fallback where the
     /// fallback ties with the sharpest: plain regions go to one frame, the reference (the one
