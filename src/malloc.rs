@@ -107,8 +107,8 @@ fn advise(p: *mut u8, size: usize) {
 }
 
 /// The whole huge pages inside `size` bytes from address `at`, for buffers of at least two
-/// huge pages (smaller ones would hold at most one, and come from glibc's heap below the
-/// mapping threshold anyway). `None` for a null or a small buffer.
+/// huge pages: a smaller one holds at most one whole huge page, often none, as glibc's
+/// mappings start anywhere on a 4 KiB boundary. `None` for a null or a small buffer.
 fn whole_pages(at: usize, size: usize) -> Option<std::ops::Range<usize>> {
     if at == 0 || size < 2 * HUGE_PAGE {
         return None;
