@@ -1,4 +1,4 @@
-//! Square-window minima and city-block distances over maps of one byte a pixel: the spill
+//! Square-window minima and maxima and city-block distances over maps of one byte a pixel: the spill
 //! stage and the flat-region rule both grow and measure regions with them.
 
 use rayon::prelude::*;
@@ -29,6 +29,14 @@ pub fn window_min(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
             into_min(out, &rows[yy * w..][..w]);
         }
     });
+    out
+}
+
+/// The largest value of `map` within `r` pixels: [`window_min`] of the complement.
+pub fn window_max(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
+    let complement: Vec<u8> = map.iter().map(|&v| u8::MAX - v).collect();
+    let mut out = window_min(&complement, w, h, r);
+    out.iter_mut().for_each(|v| *v = u8::MAX - *v);
     out
 }
 
@@ -97,6 +105,20 @@ mod tests {
                         .min();
                     assert_eq!(Some(fast[y * w + x]), slow, "({x}, {y})");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn the_window_maximum_is_the_maximum_over_the_window() {
+        let (w, h) = (7, 5);
+        let mut map = vec![3u8; w * h];
+        map[2 * w + 3] = 200;
+        let max = window_max(&map, w, h, 1);
+        for y in 0..h {
+            for x in 0..w {
+                let near = x.abs_diff(3) <= 1 && y.abs_diff(2) <= 1;
+                assert_eq!(max[y * w + x], if near { 200 } else { 3 }, "({x}, {y})");
             }
         }
     }
