@@ -171,20 +171,28 @@ pub struct Raster<'a> {
 }
 
 impl Raster<'_> {
-    /// [`Warp::apply`] at pixel x of row `y`, as a function of x.
+    /// [`Warp::apply`] at pixel x of row `y`, as a function of x. The field is interpolated
+    /// down to the row once, at every node column, and then only along x per pixel: the same
+    /// bilinear interpolation in the other order (equal but for rounding), in half the work of
+    /// [`OffsetField::between`] a pixel, which was 4 % of a parallax stack's fuse.
     #[inline]
     pub fn row(&self, y: usize) -> impl Fn(usize) -> (f64, f64) + '_ {
         let yf = y as f64;
-        let cell = self.warp.field.as_ref().map(|f| f.cell(yf, f.rows));
+        let along: Vec<(f64, f64)> = match &self.warp.field {
+            Some(f) => {
+                let row = f.cell(yf, f.rows);
+                (0..f.cols).map(|i| f.between((i, 0.0), row)).collect()
+            }
+            None => Vec::new(),
+        };
         move |x| {
             let (u, v) = self.warp.affine.apply(x as f64, yf);
-            match (&self.warp.field, cell) {
-                (Some(f), Some(row)) => {
-                    let (dx, dy) = f.between(self.cols[x], row);
-                    (u + dx, v + dy)
-                }
-                _ => (u, v),
+            if along.is_empty() {
+                return (u, v);
             }
+            let (i, fx) = self.cols[x];
+            let (a, b) = (along[i], along[(i + 1).min(along.len() - 1)]);
+            (u + a.0 + (b.0 - a.0) * fx, v + a.1 + (b.1 - a.1) * fx)
         }
     }
 }
@@ -264,5 +272,25 @@ mod tests {
             }
         }
         assert_eq!(Warp::affine(Affine::IDENTITY).apply(2.0, 3.0), (2.0, 3.0));
+        // A raster scan interpolates in the other order: the same offsets but for rounding.
+        let w = Warp {
+            affine: Affine([[1.01, 0.02, 3.0], [-0.01, 0.99, 1.5]]),
+            field: Some(OffsetField {
+                step: 7.0,
+                cols: 4,
+                rows: 3,
+                offsets: (0..12)
+                    .map(|i| (i as f32 * 0.37 - 2.0, (i * i) as f32 * 0.05))
+                    .collect(),
+            }),
+        };
+        let raster = w.raster(25);
+        for y in [0, 4, 9, 13, 20] {
+            let at = raster.row(y);
+            for x in 0..25 {
+                let ((u, v), (eu, ev)) = (at(x), w.apply(x as f64, y as f64));
+                assert!((u - eu).abs() < 1e-9 && (v - ev).abs() < 1e-9, "({x}, {y})");
+            }
+        }
     }
 }
