@@ -144,38 +144,6 @@ impl Padded {
     }
 }
 
-/// The sRGB curve (or its inverse) extended oddly below 0 and on above 1, so that noise
-/// around black and balanced highlights keep their values through the round trip. Tabulated
-/// on 0..2 and interpolated: a `powf` per sample took most of a frame's development.
-struct Curve {
-    f: fn(f32) -> f32,
-    table: Vec<f32>,
-}
-
-const CURVE_RANGE: f32 = 2.0;
-const CURVE_STEPS: usize = 8192;
-
-impl Curve {
-    fn new(f: fn(f32) -> f32) -> Curve {
-        let table = (0..=CURVE_STEPS)
-            .map(|i| f(i as f32 * CURVE_RANGE / CURVE_STEPS as f32))
-            .collect();
-        Curve { f, table }
-    }
-
-    #[inline]
-    fn at(&self, v: f32) -> f32 {
-        let a = v.abs();
-        if a >= CURVE_RANGE {
-            return v.signum() * (self.f)(a);
-        }
-        let x = a * (CURVE_STEPS as f32 / CURVE_RANGE);
-        let i = x as usize;
-        let (lo, hi) = (self.table[i], self.table[i + 1]);
-        v.signum() * (lo + (x - i as f32) * (hi - lo))
-    }
-}
-
 /// Linear RGB, three channels, from a linear mosaic: residual interpolation on its encoded
 /// samples.
 pub fn demosaic(m: &Mosaic) -> Image<f32> {
@@ -190,8 +158,7 @@ fn in_strips(m: &Mosaic, rows: usize) -> Image<f32> {
     if out.is_empty() {
         return Image::from_vec(w, h, 3, out);
     }
-    let encode = Curve::new(srgb::curve);
-    let decode = Curve::new(srgb::curve_inverse);
+    let srgb::Tabulated { encode, decode } = srgb::tabulated();
     let p = Padded::new(m, |v| encode.at(v));
     let pw = p.width;
     // One workspace for each strip being developed at once, taken by the next strip.
@@ -700,8 +667,7 @@ pub(super) mod tests {
     /// `filter` run on the mosaic's sRGB-encoded samples, its output decoded to linear light:
     /// what [`demosaic`] does, for the baselines.
     pub fn encoded(m: &Mosaic, filter: fn(&Mosaic) -> Image<f32>) -> Image<f32> {
-        let encode = Curve::new(srgb::curve);
-        let decode = Curve::new(srgb::curve_inverse);
+        let srgb::Tabulated { encode, decode } = srgb::tabulated();
         let encoded = Mosaic {
             data: m.data.iter().map(|&v| encode.at(v)).collect(),
             ..m.clone()
@@ -784,22 +750,6 @@ pub(super) mod tests {
             }
         }
         Image::from_vec(m.width, m.height, 3, out)
-    }
-
-    #[test]
-    fn the_tabulated_curves_follow_the_formulas() {
-        for f in [srgb::curve, srgb::curve_inverse] {
-            let c = Curve::new(f);
-            for i in -3000..=3000 {
-                let v = i as f32 / 1000.0;
-                let exact = v.signum() * f(v.abs());
-                assert!(
-                    (c.at(v) - exact).abs() < 2e-5,
-                    "{v}: {} against {exact}",
-                    c.at(v)
-                );
-            }
-        }
     }
 
     const ORDERS: [BayerOrder; 4] = [
