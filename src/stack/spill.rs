@@ -332,13 +332,17 @@ fn fill_near_objects<T: Sample>(
     frame_of: &(dyn Fn(usize) -> usize + Sync),
 ) -> usize {
     let (w, h, ch) = (frames[0].width, frames[0].height, frames[0].channels);
+    // Only where every frame reaches: near the border a label can be the reference's because
+    // the frame the labelling chose does not cover the pixel, which says nothing of depth
+    // (filled there, the main job's right border took the reference's blurred checkerboard).
+    let everywhere = Coverage::intersection(coverage);
     // Per pixel, its object's depth rank + 1 where it is filled, else 0.
     let mut fill = window_max(depth, w, h, FILL_REACH);
     fill.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, f) in row.iter_mut().enumerate() {
             let (i, k) = (y * w + x, depth[y * w + x]);
             let step = *f as usize >= k as usize + 2;
-            let agreed = objects[i] == k && coverage[frame_of(k as usize)].covers(x, y);
+            let agreed = objects[i] == k && everywhere.covers(x, y);
             *f = if step && agreed { k + 1 } else { 0 };
         }
     });
@@ -1136,6 +1140,34 @@ mod tests {
             .into_iter()
             .all(|i| pixel(&frames[2], i) == pixel(&before[2], i)));
         assert_eq!(frames[1], before[1]);
+    }
+
+    /// Where a frame does not reach, a label may be the reference's for want of the frame the
+    /// labelling chose, not for depth: nothing is filled there.
+    #[test]
+    fn nothing_is_filled_where_a_frame_does_not_reach() {
+        let (mut frames, _) = scene(Light::Linear);
+        let before = frames.clone();
+        let mut labels: Vec<u8> = (0..SIZE * SIZE)
+            .map(|i| if distance(i) < 0.5 { 0 } else { 2 })
+            .collect();
+        // Frame 1 misses the columns left of the disc's centre.
+        let mut coverage = full(3);
+        coverage[1].spans.fill((CENTRE as u32, SIZE as u32));
+        let out = unmix(
+            &mut frames,
+            &mut labels,
+            &[true; SIZE * SIZE],
+            &coverage,
+            Order::NearestFirst,
+            &NoProgress,
+        );
+        assert!(out.filled > 0);
+        let left_edge = (0..SIZE * SIZE)
+            .filter(|&i| (i % SIZE) < CENTRE as usize && (-5.0..-1.0).contains(&distance(i)));
+        assert!(left_edge
+            .into_iter()
+            .all(|i| frames[2].data[i * 3..][..3] == before[2].data[i * 3..][..3]));
     }
 
     /// The same haloed scene with an order its edges did not tell: left exactly as it is, labels
