@@ -33,10 +33,12 @@ use std::ops::Range;
 
 /// Pixels a flat region needs to be decided: smaller ones are gaps in texture, not objects.
 pub const MIN_AREA: usize = 64;
-/// A flat region larger than this share of the frame (its inverse) is a background, not a plain
-/// near object, and is left as it is: deciding one costs as much as its whole neighbourhood
-/// (on amber_macro and ring_macro the one background region, 70–85 % of the frame, took most of
-/// this step's 50–120 ms).
+/// A flat region whose bounding box is larger than this share of the frame (its inverse) is a
+/// background, not a plain near object, and is left as it is: deciding one costs as much as its
+/// box (on amber_macro and ring_macro the one background region, 70–85 % of the frame, took most
+/// of this step's 50–120 ms; on bench-report's layered 8 × 1.9 MP stack a region of less than a
+/// quarter of the frame sprawling over all of it took a quarter of the step's CPU time, and
+/// neither was ever taken).
 pub const LARGEST: usize = 4;
 /// How far beyond a flat region (px) a frame may show it flat: the widest rim over which a
 /// defocused frame shows texture through a plain object's edge, about 2σ of the deepest blur
@@ -135,8 +137,8 @@ struct Region {
     rim: u8,
 }
 
-/// The 4-connected regions of [`MIN_AREA`] pixels to a [`LARGEST`]th of the frame that
-/// `textured` leaves out.
+/// The 4-connected regions of at least [`MIN_AREA`] pixels, within a box of at most a
+/// [`LARGEST`]th of the frame, that `textured` leaves out.
 fn flat_regions(textured: &[bool], labels: &[u8], w: usize, h: usize) -> Vec<Region> {
     let mut seen = vec![false; w * h];
     let mut stack = Vec::new();
@@ -165,7 +167,7 @@ fn flat_regions(textured: &[bool], labels: &[u8], w: usize, h: usize) -> Vec<Reg
         }
         let rim = (0..256).max_by_key(|&l| around[l]).unwrap_or(0) as u8;
         around.fill(0);
-        if (MIN_AREA..=w * h / LARGEST).contains(&area) {
+        if area >= MIN_AREA && xs.len() * ys.len() <= w * h / LARGEST {
             regions.push(Region { seed, xs, ys, rim });
         }
     }
@@ -609,6 +611,20 @@ mod tests {
     fn settle_labels(frames: &[Image<u8>], labels: &mut [u8]) -> Settled {
         let cover = vec![Coverage::full(SIZE, SIZE); frames.len()];
         settle(frames, &cover, labels, &textured(), &|f| f)
+    }
+
+    /// A compact flat patch is a region to decide; a thin one of the same area sprawling
+    /// across the frame is not (its box is the whole frame).
+    #[test]
+    fn a_region_is_decided_only_within_a_box_of_a_quarter_of_the_frame() {
+        let (w, h) = (100, 100);
+        let labels = vec![0u8; w * h];
+        let square: Vec<bool> = (0..w * h)
+            .map(|i| !((10..30).contains(&(i % w)) && (10..30).contains(&(i / w))))
+            .collect();
+        let cross: Vec<bool> = (0..w * h).map(|i| i % w != 50 && i / w != 50).collect();
+        assert_eq!(flat_regions(&square, &labels, w, h).len(), 1);
+        assert!(flat_regions(&cross, &labels, w, h).is_empty());
     }
 
     #[test]
