@@ -1,5 +1,5 @@
-//! Square-window minima and maxima and city-block distances over maps of one byte a pixel: the spill
-//! stage and the flat-region rule both grow and measure regions with them.
+//! Square-window minima and maxima and city-block distances over maps of one byte a pixel: the
+//! spill stage and the flat-region rule both grow and measure regions with them.
 
 use rayon::prelude::*;
 
