@@ -320,8 +320,9 @@ const FILL_REACH: usize = 6;
 /// far frame shows at the step what the output wants on both sides of it, so whichever frame a
 /// band comes from, the edge is the object's (those pixels 25.2–27.6 dB). Only near the step:
 /// deeper in, a far frame's bands can be the better ones, where a slanted object lies between
-/// the planes its label and the far frame are focused on (filling every pixel labelled two
-/// planes nearer lost 0.03 dB on the 1600×1200 tripod; within 3 or 6 px it gained 0.02–0.04).
+/// the planes its label and the far frame are focused on (filling every such pixel however far
+/// from the step lost 0.06 dB on the 1600×1200 tripod; within 3 or 6 px of it the tripod gained
+/// 0.04 or 0.02).
 /// Pixels the colour calls background are left, so a label that overreaches the object does
 /// not carry the near frame's blurred background into the far frames.
 fn fill_near_objects<T: Sample>(
