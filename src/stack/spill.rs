@@ -322,9 +322,8 @@ const FILL_REACH: usize = 6;
 /// deeper in, a far frame's bands can be the better ones, where a slanted object lies between
 /// the planes its label and the far frame are focused on (filling every such pixel however far
 /// from the step lost 0.06 dB on the 1600×1200 tripod; within 3 or 6 px of it the tripod gained
-/// 0.04 or 0.02).
-/// Pixels the colour calls background are left, so a label that overreaches the object does
-/// not carry the near frame's blurred background into the far frames.
+/// 0.04 or 0.02). Pixels the colour calls background are left, so a label that overreaches the
+/// object does not carry the near frame's blurred background into the far frames.
 fn fill_near_objects<T: Sample>(
     frames: &mut [Image<T>],
     depth: &[u8],
@@ -1002,19 +1001,41 @@ mod tests {
     /// [`unmix`] on the whole of every frame, everything textured, without progress.
     fn unmix_in(frames: &mut [Image<u8>], labels: &mut [u8], order: Order) -> Unmixed {
         let n = frames.len();
+        unmix_covered(frames, labels, &full(n), order)
+    }
+
+    /// [`unmix_in`] with each frame covering what `coverage` says.
+    fn unmix_covered(
+        frames: &mut [Image<u8>],
+        labels: &mut [u8],
+        coverage: &[Coverage],
+        order: Order,
+    ) -> Unmixed {
         unmix(
             frames,
             labels,
             &[true; SIZE * SIZE],
-            &full(n),
+            coverage,
             order,
             &NoProgress,
         )
     }
 
+    /// Pixel `i`'s three samples in `f`.
+    fn pixel(f: &Image<u8>, i: usize) -> &[u8] {
+        &f.data[i * 3..][..3]
+    }
+
     fn distance(i: usize) -> f32 {
         let (x, y) = ((i % SIZE) as f32, (i / SIZE) as f32);
         ((x - CENTRE).powi(2) + (y - CENTRE).powi(2)).sqrt() - RADIUS
+    }
+
+    /// The disc labelled 0 exactly, to its edge pixel, and the rest 2.
+    fn exact_labels() -> Vec<u8> {
+        (0..SIZE * SIZE)
+            .map(|i| if distance(i) < 0.5 { 0 } else { 2 })
+            .collect()
     }
 
     /// The disc labelled 0 and the rest 2, as a label map that follows contrast gets them
@@ -1092,9 +1113,7 @@ mod tests {
     fn only_the_pixel_at_the_edge_is_guarded() {
         let (mut frames, background) = scene_of(Light::Linear, RADIUS, 4.0);
         let before = frames.clone();
-        let mut labels: Vec<u8> = (0..SIZE * SIZE)
-            .map(|i| if distance(i) < 0.5 { 0 } else { 2 })
-            .collect();
+        let mut labels = exact_labels();
         unmix_in(&mut frames, &mut labels, Order::NearestFirst);
         let (was, now) = (
             halo_within(&before[2], &background, 2.0..3.0),
@@ -1104,7 +1123,7 @@ mod tests {
         let edge = (0..SIZE * SIZE).filter(|&i| (0.5..0.9).contains(&distance(i)));
         assert!(edge
             .into_iter()
-            .all(|i| frames[2].data[i * 3..][..3] == before[2].data[i * 3..][..3]));
+            .all(|i| pixel(&frames[2], i) == pixel(&before[2], i)));
     }
 
     /// Inside the disc's edge the frame focused behind it shows the disc's own pixels once
@@ -1114,11 +1133,8 @@ mod tests {
     fn the_near_object_s_edge_is_filled_into_the_frame_behind_it() {
         let (mut frames, _) = scene(Light::Linear);
         let before = frames.clone();
-        let mut labels: Vec<u8> = (0..SIZE * SIZE)
-            .map(|i| if distance(i) < 0.5 { 0 } else { 2 })
-            .collect();
+        let mut labels = exact_labels();
         let out = unmix_in(&mut frames, &mut labels, Order::NearestFirst);
-        let pixel = |f: &Image<u8>, i: usize| f.data[i * 3..][..3].to_vec();
         let edge: Vec<usize> = (0..SIZE * SIZE)
             .filter(|&i| (-5.0..-1.0).contains(&distance(i)))
             .collect();
@@ -1149,26 +1165,17 @@ mod tests {
     fn nothing_is_filled_where_a_frame_does_not_reach() {
         let (mut frames, _) = scene(Light::Linear);
         let before = frames.clone();
-        let mut labels: Vec<u8> = (0..SIZE * SIZE)
-            .map(|i| if distance(i) < 0.5 { 0 } else { 2 })
-            .collect();
+        let mut labels = exact_labels();
         // Frame 1 misses the columns left of the disc's centre.
         let mut coverage = full(3);
         coverage[1].spans.fill((CENTRE as u32, SIZE as u32));
-        let out = unmix(
-            &mut frames,
-            &mut labels,
-            &[true; SIZE * SIZE],
-            &coverage,
-            Order::NearestFirst,
-            &NoProgress,
-        );
+        let out = unmix_covered(&mut frames, &mut labels, &coverage, Order::NearestFirst);
         assert!(out.filled > 0);
         let left_edge = (0..SIZE * SIZE)
             .filter(|&i| (i % SIZE) < CENTRE as usize && (-5.0..-1.0).contains(&distance(i)));
         assert!(left_edge
             .into_iter()
-            .all(|i| frames[2].data[i * 3..][..3] == before[2].data[i * 3..][..3]));
+            .all(|i| pixel(&frames[2], i) == pixel(&before[2], i)));
     }
 
     /// The same haloed scene with an order its edges did not tell: left exactly as it is, labels
