@@ -128,11 +128,24 @@ pub fn estimate_exposure<T: Sample>(
     let mut count = vec![0u32; nb];
     let mut sums = vec![(0.0f64, 0.0f64); nb * ch];
     let clip = CLIPPED * T::MAX;
+    let (fw, fh) = (frame.width as f64, frame.height as f64);
+    // Each sampled column's block, worked out once rather than by a division per sample.
+    let columns: Vec<(usize, usize)> = (stride / 2..w)
+        .step_by(stride)
+        .map(|x| (x, x * bx / w))
+        .collect();
+    let raster = warp.raster(w);
     for y in (stride / 2..h).step_by(stride) {
-        for x in (stride / 2..w).step_by(stride) {
-            let (u, v) = warp.apply(x as f64, y as f64);
-            let (u, v) = (u.round(), v.round());
-            if !(0.0..frame.width as f64).contains(&u) || !(0.0..frame.height as f64).contains(&v) {
+        let (at, row_block) = (raster.row(y), (y * by / h) * bx);
+        for &(x, column_block) in &columns {
+            // The nearest frame pixel: u + ½ truncated is u rounded wherever it is in the frame
+            // (u > −½), without the library call `round` is on baseline x86-64. With the
+            // columns' blocks and the raster's rows, the warp stage (this and the resampling)
+            // took 29.6 → 22.9 ms on sim-data/aligned, 40 → 30 on sim-data/handheld (medians
+            // of 5–7 interleaved runs), the output the same to the byte.
+            let (u, v) = at(x);
+            let (u, v) = (u + 0.5, v + 0.5);
+            if !(u > 0.0 && u < fw && v > 0.0 && v < fh) {
                 continue;
             }
             let r = &reference.data[(y * w + x) * ch..][..ch];
@@ -140,7 +153,7 @@ pub fn estimate_exposure<T: Sample>(
             if r.iter().chain(f).any(|s| s.to_f32() >= clip) {
                 continue;
             }
-            let b = (y * by / h) * bx + x * bx / w;
+            let b = row_block + column_block;
             count[b] += 1;
             for c in 0..ch {
                 let s = &mut sums[b * ch + c];
