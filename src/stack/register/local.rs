@@ -19,7 +19,7 @@
 //! the output is what it was without local registration.
 //!
 //! Memory: the planes are the registration's own detection level; a side of the stack keeps one
-//! warped plane and one chained flow at a time; each field is 8 bytes per level pixel.
+//! high-passed pyramid and one chained flow at a time; each field is 8 bytes per level pixel.
 
 use super::equalise::box_sum;
 use super::levels::to_level;
@@ -180,20 +180,40 @@ fn high_pass(p: &Plane) -> Plane {
     Plane::from_vec(p.width, p.height, 1, data)
 }
 
+/// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
+/// [`flow`] matches. Made once per frame: a frame is the far side of one pair of the chain and
+/// the near side of the next.
+struct Pyramid(Vec<Plane>);
+
+impl Pyramid {
+    fn new(p: &Plane) -> Pyramid {
+        let mut levels = vec![p.clone()];
+        for _ in 0..LEVELS {
+            let last = levels.last().expect("level");
+            if last.width.min(last.height) < 32 {
+                break;
+            }
+            let reduced = reduce_nan(last);
+            levels.push(reduced);
+        }
+        Pyramid(levels.iter().map(high_pass).collect())
+    }
+}
+
 /// The chain of local fields of one side of the reference: call [`Chain::next`] with each frame
-/// in order outwards from the reference; only the last frame's plane and flow are kept.
+/// in order outwards from the reference; only the last frame's pyramid and flow are kept.
 pub struct Chain {
-    prev: Warped,
+    prev: Pyramid,
     flow: Flow,
     /// Pyramid level the planes are at.
     level: usize,
 }
 
 impl Chain {
-    /// Starts at the reference's level plane (high-passed, not warped).
+    /// Starts at the reference's level plane (not warped).
     pub fn new(reference: &Plane, level: usize) -> Chain {
         Chain {
-            prev: Warped::new(reference, &Affine::IDENTITY, 0),
+            prev: Pyramid::new(&Warped::new(reference, &Affine::IDENTITY, 0).0),
             flow: Flow::zero(reference.width, reference.height),
             level,
         }
@@ -202,9 +222,10 @@ impl Chain {
     /// The offset field of the next frame outwards (`ref_to_frame` its global affine, full
     /// resolution), or None where it stays within [`MIN_MOTION_PX`] of the affine.
     pub fn next(&mut self, frame: Warped, ref_to_frame: &Affine) -> Option<OffsetField> {
-        let d = flow(&self.prev.0, &frame.0);
+        let next = Pyramid::new(&frame.0);
+        let d = flow(&self.prev, &next);
         self.flow = self.flow.chain(&d);
-        self.prev = frame;
+        self.prev = next;
         let s = (1u64 << self.level) as f32;
         // Frame point = A(x + g) = A(x) + L·g for the affine's linear part L.
         let [[l00, l01, _], [l10, l11, _]] = ref_to_frame.0;
@@ -231,24 +252,10 @@ impl Chain {
     }
 }
 
-/// Coarse-to-fine windowed Lucas–Kanade flow taking `a`'s content to where it shows in `b`.
-fn flow(a: &Plane, b: &Plane) -> Flow {
-    let mut pa = vec![a.clone()];
-    let mut pb = vec![b.clone()];
-    for _ in 0..LEVELS {
-        let (la, lb) = (pa.last().expect("level"), pb.last().expect("level"));
-        if la.width.min(la.height) < 32 {
-            break;
-        }
-        let (ra, rb) = (reduce_nan(la), reduce_nan(lb));
-        pa.push(ra);
-        pb.push(rb);
-    }
-    let (pa, pb): (Vec<Plane>, Vec<Plane>) = pa
-        .iter()
-        .zip(&pb)
-        .map(|(a, b)| (high_pass(a), high_pass(b)))
-        .unzip();
+/// Coarse-to-fine windowed Lucas–Kanade flow taking `a`'s content to where it shows in `b`
+/// (pyramids of one size).
+fn flow(a: &Pyramid, b: &Pyramid) -> Flow {
+    let (pa, pb) = (&a.0, &b.0);
     let top = pa.len() - 1;
     let mut f = Flow::zero(pa[top].width, pa[top].height);
     for k in (0..=top).rev() {
@@ -447,6 +454,7 @@ mod tests {
     fn flow_recovers_a_shift_and_stays_still_without_one() {
         let a = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64, y as f64));
         let b = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64 - 1.3, y as f64 + 0.6));
+        let (a, b) = (Pyramid::new(&a), Pyramid::new(&b));
         let f = flow(&a, &b);
         for i in [60 * 160 + 80, 30 * 160 + 40, 90 * 160 + 120] {
             assert!(
