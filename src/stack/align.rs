@@ -319,44 +319,80 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
         let e = exposure[c];
         (1.0 / e.gain, -e.offset * scale / e.gain)
     });
-    // Converted once: a scalar integer-to-float conversion per tap would cost more than the
-    // interpolation (16 taps per pixel and channel).
-    // Sized up front, in one allocation: a parallel collect would build it from pieces allocated
-    // in the worker threads' malloc arenas, which keep the memory after it is freed.
-    src.resize(fw * fh * L, 0.0);
-    src.par_chunks_mut(L << 14)
-        .zip(frame.data.par_chunks(C << 14))
-        .for_each(|(d, s)| {
-            for (d, s) in d.chunks_exact_mut(L).zip(s.chunks_exact(C)) {
-                let (d, pad) = d.split_at_mut(C);
-                d.iter_mut().zip(s).for_each(|(d, s)| *d = s.to_f32());
-                pad.fill(0.0);
-            }
-        });
-    let rows = Rows {
-        src,
-        size: (fw, fh),
-        table: keys_table(),
-        raster: warp.raster(w),
-        correct,
-    };
-    let spans: Vec<(u32, u32)> = data
-        .par_chunks_mut(w * C)
-        .zip(reference.data.par_chunks(w * C))
-        .enumerate()
-        .map(|(y, (row, fallback))| rows.warp::<T, L>(y, row, fallback))
-        .collect();
+    // Output rows in bands, each band's frame rows converted to floats just before it is
+    // resampled: a scalar integer-to-float conversion per tap would cost more than the
+    // interpolation (16 taps per pixel and channel), and the whole frame as floats was 16 bytes
+    // a pixel of fresh memory (88 MB for a 5.5 MP frame) where a band's rows are a few MB. A
+    // band is at least as tall as the rows a roll spreads one output row over, so no frame row
+    // is converted more than about twice.
+    let reach = warp.field.as_ref().map_or(0.0, |f| f.reach(1.0));
+    let roll = w as f64 * warp.affine.0[1][0].abs() + 2.0 * reach;
+    let band = BAND_ROWS.max(roll.ceil() as usize);
+    let (table, raster) = (keys_table(), warp.raster(w));
+    let h = reference.height;
+    let mut spans = Vec::with_capacity(h);
+    for y0 in (0..h).step_by(band) {
+        let y1 = (y0 + band).min(h);
+        let (lo, hi) = warp.frame_rows(y0..y1, w, reach);
+        // Every row a tap of the band reads: from the row before the lowest coordinate to three
+        // after the highest (a coordinate may round up to the next pixel), and one more each
+        // side for rounding.
+        let first = (lo.floor() - 2.0).clamp(0.0, fh as f64) as usize;
+        let end = ((hi.floor() + 5.0).clamp(0.0, fh as f64) as usize).max(first);
+        // Sized in one allocation, reused by every band and frame: a parallel collect would
+        // build it from pieces allocated in the worker threads' malloc arenas, which keep the
+        // memory after it is freed.
+        src.resize((end - first) * fw * L, 0.0);
+        src[..(end - first) * fw * L]
+            .par_chunks_mut(L << 14)
+            .zip(frame.data[first * fw * C..end * fw * C].par_chunks(C << 14))
+            .for_each(|(d, s)| {
+                for (d, s) in d.chunks_exact_mut(L).zip(s.chunks_exact(C)) {
+                    let (d, pad) = d.split_at_mut(C);
+                    d.iter_mut().zip(s).for_each(|(d, s)| *d = s.to_f32());
+                    pad.fill(0.0);
+                }
+            });
+        let rows = Rows {
+            src,
+            first,
+            size: (fw, fh),
+            table: &table,
+            raster: &raster,
+            correct,
+        };
+        spans.par_extend(
+            data[y0 * w * C..y1 * w * C]
+                .par_chunks_mut(w * C)
+                .zip(reference.data[y0 * w * C..y1 * w * C].par_chunks(w * C))
+                .enumerate()
+                .map(|(k, (row, fallback))| rows.warp::<T, L>(y0 + k, row, fallback)),
+        );
+    }
     Coverage { width: w, spans }
+}
+
+/// Output rows a band of the warp has at least (see [`warp_channels`]).
+const BAND_ROWS: usize = 64;
+
+/// Frame rows the warp of a `width`×`height` stack holds as floats at once, for the memory
+/// plan: a band and the rows it reaches under a roll of up to about 3° (a twentieth of the
+/// width across it) and local offsets of up to 16 px; a steeper roll takes more.
+pub fn warp_scratch_rows(width: usize, height: usize) -> usize {
+    let band = BAND_ROWS.max(width / 20 + 32);
+    (2 * band + 8).min(height)
 }
 
 /// What [`warp_channels`] resamples a row of the output from.
 struct Rows<'a, const C: usize> {
-    /// The frame's samples as floats, `L` lanes a pixel.
+    /// The frame's rows from `first` on as floats, `L` lanes a pixel: every row the band's
+    /// taps read.
     src: &'a [f32],
+    first: usize,
     /// The frame's width and height.
     size: (usize, usize),
-    table: [[f32; 4]; PHASES],
-    raster: Raster<'a>,
+    table: &'a [[f32; 4]; PHASES],
+    raster: &'a Raster<'a>,
     /// Per channel, the exposure correction as a multiply-add.
     correct: [(f32, f32); C],
 }
@@ -399,7 +435,7 @@ impl<const C: usize> Rows<'_, C> {
         row: &mut [T],
         fallback: &[T],
     ) -> (u32, u32) {
-        let (src, (fw, fh), table) = (self.src, self.size, &self.table);
+        let (src, first, (fw, fh), table) = (self.src, self.first, self.size, self.table);
         let (umax, vmax) = (fw as f64 - 1.0, fh as f64 - 1.0);
         let w = row.len() / C;
         let (mut lo, mut hi) = (w, 0);
@@ -422,7 +458,7 @@ impl<const C: usize> Rows<'_, C> {
                 // weighted for y (separable: 20 multiply-adds a lane, not 16 and 16 products of
                 // weights; the warp took 7 % less time on a 1.9 MP parallax stack, and a few
                 // pixels in a hundred thousand round one level apart).
-                let base = ((y0 - 1) * fw + x0 - 1) * L;
+                let base = ((y0 - 1 - first) * fw + x0 - 1) * L;
                 for (r, &wy) in ky.iter().enumerate() {
                     let taps = &src[base + r * fw * L..][..4 * L];
                     let mut along = [0.0f32; L];
@@ -439,7 +475,7 @@ impl<const C: usize> Rows<'_, C> {
             } else {
                 let tap = |o: usize, k: usize, n: usize| (o + k).saturating_sub(1).min(n - 1);
                 for (r, &wy) in ky.iter().enumerate() {
-                    let yy = tap(y0, r, fh);
+                    let yy = tap(y0, r, fh) - first;
                     for (k, &wx) in kx.iter().enumerate() {
                         let px = &src[(yy * fw + tap(x0, k, fw)) * L..][..L];
                         for (a, s) in acc.iter_mut().zip(px) {
@@ -465,7 +501,7 @@ impl<const C: usize> Rows<'_, C> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::stack::transform::Affine;
+    use crate::stack::transform::{Affine, OffsetField};
 
     /// The pixel and phase of a coordinate; a fraction that rounds up to a whole pixel is the
     /// next pixel at phase 0, which [`keys`] weighs as the pixel before at phase 1.
@@ -525,6 +561,67 @@ mod tests {
         for (e, g) in e.iter().zip([1.05, 0.97, 1.02]) {
             assert!((e.gain - g).abs() < 0.01, "{e:?} vs gain {g}");
             assert!((e.offset - 0.02).abs() < 0.005, "{e:?}");
+        }
+    }
+
+    /// The warp converts the frame to floats a band of output rows at a time: every band must
+    /// hold every frame row its taps read, under a slight roll with a local field pulling rows
+    /// up and down, and under a roll steep enough to spread one output row over more rows than
+    /// a band has. Checked against bicubic resampling straight from the frame through
+    /// `Warp::apply`, pixel by pixel.
+    #[test]
+    fn each_band_of_the_warp_holds_every_frame_row_its_taps_read() {
+        let (w, h) = (200, 260);
+        let reference = textured(w, h, [1.0; 3], 0.0, 0.0);
+        let frame = textured(w, h, [1.0; 3], 0.0, 2.0);
+        let centre = (w as f64 / 2.0, h as f64 / 2.0);
+        let field = OffsetField {
+            step: 50.0,
+            cols: 5,
+            rows: 7,
+            offsets: (0..35)
+                .map(|i| (0.5, if i % 3 == 0 { 6.0 } else { -4.5 }))
+                .collect(),
+        };
+        let warps = [
+            Warp {
+                affine: Affine::similarity(1.0, 0.03, centre, (1.5, -2.0)),
+                field: Some(field),
+            },
+            Warp::affine(Affine::similarity(1.0, 0.45, centre, (0.0, 0.0))),
+        ];
+        let kx = |t: f64| keys(t as f32);
+        for warp in &warps {
+            let (out, _) = warp_frame(&frame, &reference, warp, &[Exposure::SAME; 3]);
+            for y in 0..h {
+                for x in 0..w {
+                    let (u, v) = warp.apply(x as f64, y as f64);
+                    let inside =
+                        (0.0..=(w - 1) as f64).contains(&u) && (0.0..=(h - 1) as f64).contains(&v);
+                    for c in 0..3 {
+                        let want = if inside {
+                            let (x0, y0) = (u.floor(), v.floor());
+                            let (wx, wy) = (kx(u - x0), kx(v - y0));
+                            let mut sum = 0.0f32;
+                            for (r, wy) in wy.iter().enumerate() {
+                                for (k, wx) in wx.iter().enumerate() {
+                                    let at = |o: f64, d: usize, n: usize| {
+                                        (o as isize + d as isize - 1).clamp(0, n as isize - 1)
+                                            as usize
+                                    };
+                                    let px = frame.at(at(x0, k, w), at(y0, r, h), c);
+                                    sum += wx * wy * px as f32;
+                                }
+                            }
+                            u8::from_f32(sum)
+                        } else {
+                            reference.at(x, y, c)
+                        };
+                        let got = out.at(x, y, c);
+                        assert!(got.abs_diff(want) <= 1, "({x}, {y}, {c}): {got} vs {want}");
+                    }
+                }
+            }
         }
     }
 

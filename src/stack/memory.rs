@@ -7,7 +7,7 @@
 //! smallest bands: a phone that swaps is slower, one whose job aborted has nothing. Estimates are
 //! in bytes and are checked against `/usr/bin/time -v` by `scripts/bench-memory`.
 
-use super::align::warp_lanes;
+use super::align::{warp_lanes, warp_scratch_rows};
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
 use super::flat_regions;
 use super::params::{FuseParams, Method};
@@ -104,9 +104,11 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     let prepared = if full_level { 10 } else { 6 };
     let refine = |k: usize| s.frames * fine * 16 / 3 + (k + 1) * 8 * 4 * fine;
     let register = |k: usize| frames + (k * px * prepared).max(refine(k));
-    // Warping: the frames, the spare frame each is warped into, and the frame being warped as
-    // floats in the warp's lanes (four a pixel for colour: one vector multiply-add a tap).
-    let warp = frames + frame + 4 * px * warp_lanes(s.channels);
+    // Warping: the frames, the spare frame each is warped into, and the rows of the frame a
+    // band of the warp reads, as floats in the warp's lanes (four a pixel for colour: one
+    // vector multiply-add a tap).
+    let scratch = s.width * warp_scratch_rows(s.width, s.height);
+    let warp = frames + frame + 4 * scratch * warp_lanes(s.channels);
     // Focus amplitudes (u16 per frame) and their maximum, the label, free, texture and strip
     // maps (a frame's luma is made a row at a time as its amplitudes are measured); in bands,
     // the amplitudes of a band's rows and, while each frame's are measured for the coarse

@@ -153,6 +153,25 @@ impl Warp {
         }
     }
 
+    /// The frame rows (as a range of y coordinates, not rounded) that reference rows `rows`,
+    /// `width` pixels wide, map into: the affine's extremes lie on the corners of the
+    /// rectangle, and the field adds at most its largest offset (`reach` the field's
+    /// [`OffsetField::reach`] at 1, passed in as it is made once per frame).
+    pub fn frame_rows(&self, rows: std::ops::Range<usize>, width: usize, reach: f64) -> (f64, f64) {
+        let (x1, y0, y1) = (
+            width.saturating_sub(1) as f64,
+            rows.start as f64,
+            rows.end as f64 - 1.0,
+        );
+        let v = [(0.0, y0), (x1, y0), (0.0, y1), (x1, y1)].map(|(x, y)| self.affine.apply(x, y).1);
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        (lo - reach, hi + reach)
+    }
+
     /// [`Warp::apply`] for a raster scan of a `width`-pixel-wide reference: the field's cells
     /// along x are found once for every row.
     pub fn raster(&self, width: usize) -> Raster<'_> {
