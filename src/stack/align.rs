@@ -101,7 +101,12 @@ impl Exposure {
 /// means of a sharp and a blurred frame line up; the spread of the blocks' brightness is what
 /// separates gain from offset.
 const BLOCKS: (usize, usize) = (12, 9);
-/// Samples per frame the block means are taken from.
+/// Samples per frame the block means are taken from, at most: the grid's step is rounded up.
+/// Rounded down, a 640×480 frame was sampled at every one of its 307k pixels and a 1.2 MP one
+/// at 137k; at most 100k, sim-data's aligned and hand-held stacks' warp stage (this and the
+/// resampling) took 23.6 → 18.3 and 31.5 → 26.3 ms (medians of 5 interleaved runs), their PSNR
+/// against the truth the same to 0.002 dB (and hand-held 10 × 3.1 MP's, with 5 % gain and 3 %
+/// white-balance jitter), scripts/bench-quality's within 0.02 dB.
 const SAMPLES: usize = 100_000;
 /// Values at or above this fraction of full scale may be clipped and say nothing about gain.
 const CLIPPED: f32 = 0.98;
@@ -121,7 +126,7 @@ pub fn estimate_exposure<T: Sample>(
     warp: &Warp,
 ) -> Vec<Exposure> {
     let (w, h, ch) = (reference.width, reference.height, reference.channels);
-    let stride = ((w * h) as f64 / SAMPLES as f64).sqrt().max(1.0) as usize;
+    let stride = ((w * h) as f64 / SAMPLES as f64).sqrt().ceil().max(1.0) as usize;
     let (bx, by) = BLOCKS;
     let nb = bx * by;
     // Per block: samples, then per channel Σ reference and Σ frame.
