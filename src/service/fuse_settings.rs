@@ -32,8 +32,10 @@ pub struct FuseSettings {
     #[arg(long, conflicts_with = "no_align")]
     pub crop: bool,
     /// Memory budget in MiB, 64..=65536 (`--memory`): a tighter one composes and labels in
-    /// bands of rows and registers fewer frames at once (slower, same image); below what the
-    /// stack needs at least, it fuses anyway in the smallest bands and says so.
+    /// bands of rows and registers fewer frames at once (slower, same image). Below what the
+    /// stack needs at least, `focusd fuse` refuses it before decoding a frame and names the
+    /// budget it needs; a capture (whose frames come from the camera) fuses anyway in the
+    /// smallest bands and warns.
     #[arg(long = "memory", value_name = "MIB", default_value_t = FuseSettings::default().memory_mb,
           value_parser = MEMORY_MIB.parser())]
     pub memory_mb: u32,
