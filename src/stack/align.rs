@@ -331,8 +331,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
     // band is at least as tall as the rows a roll spreads one output row over, so no frame row
     // is converted more than about twice.
     let reach = warp.field.as_ref().map_or(0.0, |f| f.reach(1.0));
-    let roll = w as f64 * warp.affine.0[1][0].abs() + 2.0 * reach;
-    let band = BAND_ROWS.max(roll.ceil() as usize);
+    let band = band_rows(w as f64 * warp.affine.0[1][0].abs() + 2.0 * reach);
     let (table, raster) = (keys_table(), warp.raster(w));
     let h = reference.height;
     let mut spans = Vec::with_capacity(h);
@@ -380,11 +379,18 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
 /// Output rows a band of the warp has at least (see [`warp_channels`]).
 const BAND_ROWS: usize = 64;
 
+/// Output rows of a band of the warp where one output row spreads over `spread` frame rows (a
+/// roll across the width, and a field's reach up and down): at least [`BAND_ROWS`] and at least
+/// the spread, so that no frame row is converted more than about twice.
+fn band_rows(spread: f64) -> usize {
+    BAND_ROWS.max(spread.ceil() as usize)
+}
+
 /// Frame rows the warp of a `width`×`height` stack holds as floats at once, for the memory
 /// plan: a band and the rows it reaches under a roll of up to about 3° (a twentieth of the
 /// width across it) and local offsets of up to 16 px; a steeper roll takes more.
 pub fn warp_scratch_rows(width: usize, height: usize) -> usize {
-    let band = BAND_ROWS.max(width / 20 + 32);
+    let band = band_rows((width / 20 + 32) as f64);
     (2 * band + 8).min(height)
 }
 
