@@ -175,6 +175,8 @@ impl<S: Rows> Rows for Cached<'_, S> {
 }
 
 /// Streams the rows of a separable symmetric convolution (replicated edges) of a row source.
+/// Its reader may skip rows forward when the source is random access (a plane's rows): rows the
+/// vertical pass no longer reads are then never asked for.
 pub(crate) struct RowBlur<'k, S> {
     src: S,
     w: usize,
@@ -217,7 +219,8 @@ impl<S: Rows> Rows for RowBlur<'_, S> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
         let (w, h, r) = (self.w, self.h, self.half.len() - 1);
         let slot = |s: usize| (s % (2 * r + 1)) * w;
-        let mut next = self.next.unwrap_or(y.saturating_sub(r));
+        let first = y.saturating_sub(r);
+        let mut next = self.next.map_or(first, |n| n.max(first));
         while next <= (y + r).min(h - 1) {
             let p = &mut self.padded;
             self.src.row(next, &mut p[r..r + w]);
@@ -467,6 +470,24 @@ mod tests {
                     .fold(0.0, f32::max);
                 assert!(err < 1e-5, "{w}x{h} sigma {sigma}: max error {err}");
             }
+        }
+    }
+
+    /// A reader of a random-access source may skip rows (the compose's band selection skips
+    /// rows where a frame is absent): the rows it asks for are those of the whole blur, to the
+    /// bit, after short skips (within the kernel's reach), long ones and none.
+    #[test]
+    fn a_blur_read_with_rows_skipped_gives_the_same_rows() {
+        let (w, h) = (23, 61);
+        let p = Plane::from_fn(w, h, 1, |x, y, _| ((x * 31 + y * 17) % 13) as f32 / 13.0);
+        let half = gaussian_half(2.0);
+        let mut whole = Plane::new(w, h, 1);
+        blur_rows_into(&mut whole.data, w, h, &half, || PlaneRows(&p));
+        let mut blur = RowBlur::new(PlaneRows(&p), w, h, &half);
+        let mut row = vec![0.0; w];
+        for y in [0, 1, 3, 4, 20, 21, 22, 40, 59, 60] {
+            blur.row(y, &mut row);
+            assert_eq!(row, whole.data[y * w..][..w], "row {y}");
         }
     }
 
