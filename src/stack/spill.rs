@@ -78,21 +78,25 @@ pub enum Light {
 }
 
 impl Light {
-    /// A stored (sRGB-encoded) value in this light. Linear light by table ([`srgb::tabulated`]):
-    /// a `powf` for every channel of the reduced frames and, twice, of every pixel un-mixed was
-    /// a tenth of the stage on the linear-light stacks.
-    fn mixed(self, v: f32) -> f32 {
-        match self {
-            Light::Linear => srgb::tabulated().decode.at(v.clamp(0.0, 1.0)),
-            Light::Display => v,
+    /// Takes a stored (sRGB-encoded) value into this light. Linear light by table
+    /// ([`srgb::tabulated`]): a `powf` for every channel of the reduced frames and, twice, of
+    /// every pixel un-mixed was a tenth of the stage on the linear-light stacks. The table is
+    /// looked up once here, not once a value (a synchronised static's check per value made the
+    /// reduced frames' luma take 12 ns a pixel).
+    fn mixing(self) -> impl Fn(f32) -> f32 + Copy + Sync {
+        let curve = (self == Light::Linear).then(|| &srgb::tabulated().decode);
+        move |v| match curve {
+            Some(c) => c.at(v.clamp(0.0, 1.0)),
+            None => v,
         }
     }
 
-    /// A value in this light, stored.
-    fn stored(self, v: f32) -> f32 {
-        match self {
-            Light::Linear => srgb::tabulated().encode.at(v.clamp(0.0, 1.0)),
-            Light::Display => v.clamp(0.0, 1.0),
+    /// Takes a value in this light back to its stored form (see [`Self::mixing`]).
+    fn storing(self) -> impl Fn(f32) -> f32 + Copy + Sync {
+        let curve = (self == Light::Linear).then(|| &srgb::tabulated().encode);
+        move |v| match curve {
+            Some(c) => c.at(v.clamp(0.0, 1.0)),
+            None => v.clamp(0.0, 1.0),
         }
     }
 }
@@ -276,9 +280,10 @@ pub fn unmix<T: Sample>(
     };
     let mut mixed = reduced;
     if light == Light::Linear {
+        let mix = light.mixing();
         mixed.par_iter_mut().for_each(|planes| {
             for v in planes.iter_mut().flat_map(|p| p.data.iter_mut()) {
-                *v = light.mixed(*v);
+                *v = mix(*v);
             }
         });
     }
@@ -523,14 +528,13 @@ fn refine<T: Sample>(
 
 /// The luma of reduced sRGB-encoded planes, in `light`.
 fn luma(planes: &[Plane], light: Light) -> Plane {
-    let px = planes[0].pixels();
-    let v = |c: usize, i: usize| light.mixed(planes[c].data[i]);
-    let data = (0..px)
-        .map(|i| match planes.len() {
-            1 => v(0, i),
-            _ => luma_of(v(0, i), v(1, i), v(2, i)),
-        })
-        .collect();
+    let mix = light.mixing();
+    let data = match planes {
+        [r, g, b] => (r.data.iter().zip(&g.data).zip(&b.data))
+            .map(|((&r, &g), &b)| luma_of(mix(r), mix(g), mix(b)))
+            .collect(),
+        _ => planes[0].data.iter().map(|&v| mix(v)).collect(),
+    };
     Plane::from_vec(planes[0].width, planes[0].height, 1, data)
 }
 
@@ -877,6 +881,7 @@ impl Spill {
             })
             .collect();
         let cols = taps(w, self.factor, rw);
+        let (mix, store) = (light.mixing(), light.storing());
         frame
             .data
             .par_chunks_mut(w * ch)
@@ -898,10 +903,10 @@ impl Spill {
                         continue;
                     }
                     for (c, v) in px.iter_mut().enumerate() {
-                        let f = light.mixed(v.to_f32() / T::MAX);
+                        let f = mix(v.to_f32() / T::MAX);
                         let s = self.colour[c].sample_taps(tx, ty);
                         let b = ((f - s) / (1.0 - a)).clamp(0.0, 1.0);
-                        *v = T::from_f32(light.stored(keep * b + (1.0 - keep) * f) * T::MAX);
+                        *v = T::from_f32(store(keep * b + (1.0 - keep) * f) * T::MAX);
                     }
                     changed += 1;
                 }
@@ -958,11 +963,11 @@ mod tests {
         let stripes = |x: f32, y: f32, p: f32| 0.5 + 0.35 * ((x + 0.5 * y) * p).sin();
         let near: Vec<Plane> = [0.9, 0.3, 0.2]
             .iter()
-            .map(|&c| plane(&|x, y| light.mixed(c * stripes(x, y, 0.7))))
+            .map(|&c| plane(&|x, y| light.mixing()(c * stripes(x, y, 0.7))))
             .collect();
         let far: Vec<Plane> = [0.3, 0.5, 0.8]
             .iter()
-            .map(|&c| plane(&|x, y| light.mixed(c * stripes(y, -x, 0.45))))
+            .map(|&c| plane(&|x, y| light.mixing()(c * stripes(y, -x, 0.45))))
             .collect();
         let frame = |near_sigma: f32, far_sigma: f32| {
             let a = gaussian_blur(&alpha, near_sigma);
@@ -976,7 +981,7 @@ mod tests {
                     };
                     let (ac, b) = (gaussian_blur(&ac, near_sigma), gaussian_blur(b, far_sigma));
                     let data = (0..SIZE * SIZE)
-                        .map(|i| light.stored(ac.data[i] + (1.0 - a.data[i]) * b.data[i]))
+                        .map(|i| light.storing()(ac.data[i] + (1.0 - a.data[i]) * b.data[i]))
                         .collect();
                     Plane::from_vec(SIZE, SIZE, 1, data)
                 })
@@ -987,7 +992,7 @@ mod tests {
         let background = far
             .iter()
             .map(|b| Plane {
-                data: b.data.iter().map(|&v| light.stored(v)).collect(),
+                data: b.data.iter().map(|&v| light.storing()(v)).collect(),
                 ..*b
             })
             .collect();
