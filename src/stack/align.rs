@@ -599,8 +599,10 @@ impl<const C: usize> Rows<'_, C> {
         let mut span = (w, 0);
         let at = self.raster.row(y);
         let mut x = 0;
+        // The second pixel's taps when it was not taken with the first: the next step's first.
+        let mut carried = None;
         while x < w {
-            let a = self.taps(at(x));
+            let a = carried.take().unwrap_or_else(|| self.taps(at(x)));
             let b = match x + 1 < w {
                 true => self.taps(at(x + 1)),
                 false => Taps::Outside,
@@ -622,6 +624,7 @@ impl<const C: usize> Rows<'_, C> {
                 if let Some(acc) = self.pixel::<T, L>(a, x, &mut span, out, fallback) {
                     self.store(&acc, out);
                 }
+                carried = Some(b);
                 x += 1;
                 continue;
             };
