@@ -39,6 +39,21 @@ pub fn gaussian_blur(src: &Plane, sigma: f32) -> Plane {
     convolve_separable(src, &gaussian_kernel(sigma))
 }
 
+/// [`gaussian_blur`] into `dst`, whose buffer is reused (resized to `src`'s): for a stage that
+/// blurs every frame of a stack at one size.
+pub fn gaussian_blur_into(src: &Plane, sigma: f32, dst: &mut Plane) {
+    debug_assert_eq!(src.channels, 1);
+    if sigma <= 0.0 {
+        return dst.clone_from(src);
+    }
+    let (w, h) = (src.width, src.height);
+    (dst.width, dst.height, dst.channels) = (w, h, 1);
+    dst.data.resize(w * h, 0.0);
+    blur_rows_into(&mut dst.data, w, h, &gaussian_half(sigma), || {
+        PlaneRows(src)
+    });
+}
+
 /// Each channel of `img` through `gaussian_blur`: a lens's blur on a colour frame.
 pub fn gaussian_blur_channels(img: &Plane, sigma: f32) -> Plane {
     let planes: Vec<Plane> = img
@@ -389,6 +404,17 @@ fn downsample_channels<T: Sample, const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_blur_into_a_used_plane_is_the_blur() {
+        let p = Plane::from_fn(37, 23, 1, |x, y, _| ((x * 7 + y * 3) % 11) as f32);
+        // A larger plane's leftovers in the buffer, and a plane of another size.
+        let mut dst = Plane::from_fn(50, 40, 1, |_, _, _| -5.0);
+        for sigma in [1.3, 0.0, 2.1] {
+            gaussian_blur_into(&p, sigma, &mut dst);
+            assert_eq!(dst, gaussian_blur(&p, sigma), "σ {sigma}");
+        }
+    }
 
     /// A slice of u16 samples (the focus amplitudes) averages to the nearest whole unit, partial
     /// blocks at the edges included, as the same samples held as an image do.

@@ -70,12 +70,28 @@ impl Sample for f32 {
 }
 
 /// An interleaved image: `channels` samples per pixel, rows top to bottom.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Debug, PartialEq)]
 pub struct Image<T> {
     pub width: usize,
     pub height: usize,
     pub channels: usize,
     pub data: Vec<T>,
+}
+
+impl<T: Clone> Clone for Image<T> {
+    fn clone(&self) -> Self {
+        Self {
+            data: self.data.clone(),
+            ..*self
+        }
+    }
+
+    /// Copies `src` into `self`'s buffer: a stage that makes a plane of the same size for every
+    /// frame can keep one, rather than map and fault in fresh memory each time.
+    fn clone_from(&mut self, src: &Self) {
+        (self.width, self.height, self.channels) = (src.width, src.height, src.channels);
+        self.data.clone_from(&src.data);
+    }
 }
 
 /// A single-channel working plane in f32.

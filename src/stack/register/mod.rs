@@ -34,6 +34,7 @@ use matching::Features;
 use ransac::{Fit, Pair};
 use rayon::prelude::*;
 use refine::Template;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Tuning of [`register`]; the defaults were tuned on 0.2–3 MP synthetic hand-held stacks.
 #[derive(Clone, Debug, PartialEq)]
@@ -306,12 +307,12 @@ pub fn register_with<T: Sample>(
     if p.refine_levels > 0 {
         let tpl = Template::new(&frames[reference].levels, fine, coarse);
         // As many frames at once as are prepared at once: each refinement holds its frame's
-        // blur stack and the planes compared with the template's.
-        let refined = in_batches(n, at_once, |i| {
+        // blur stacks and the planes compared with the template's.
+        let refined = in_workers(n, at_once, refine::Buffers::default, |buffers, i| {
             let matched = matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
             let r = matched.then(|| {
                 let (init, levels) = (reg.ref_to_frame[i], &frames[i].levels);
-                refine::refine(&tpl, levels, init, p.refine_iterations)
+                refine::refine(&tpl, levels, init, p.refine_iterations, buffers)
             });
             step().map(|()| r)
         })?;
@@ -376,6 +377,43 @@ fn in_batches<T: Send>(
         out.extend(batch);
     }
     Ok(out)
+}
+
+/// `f` of every frame 0..n, in order, as [`in_batches`] at most `at_once` frames at a time,
+/// but by workers (no more than there are threads) that each keep a state made by `init`
+/// from one frame to the next (buffers the same size for every frame) and take the next frame
+/// as they come free; the first error stops them.
+fn in_workers<S, T: Send>(
+    n: usize,
+    at_once: usize,
+    init: impl Fn() -> S + Sync,
+    f: impl Fn(&mut S, usize) -> Result<T, RegisterError> + Sync,
+) -> Result<Vec<T>, RegisterError> {
+    let workers = at_once.min(rayon::current_num_threads()).clamp(1, n.max(1));
+    let next = AtomicUsize::new(0);
+    let done: Vec<Vec<(usize, T)>> = (0..workers)
+        .into_par_iter()
+        .map(|_| {
+            let mut state = init();
+            let mut done = Vec::new();
+            loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                if i >= n {
+                    return Ok(done);
+                }
+                match f(&mut state, i) {
+                    Ok(t) => done.push((i, t)),
+                    Err(e) => {
+                        next.store(n, Ordering::Relaxed);
+                        return Err(e);
+                    }
+                }
+            }
+        })
+        .collect::<Result<_, _>>()?;
+    let mut all: Vec<(usize, T)> = done.into_iter().flatten().collect();
+    all.sort_unstable_by_key(|&(i, _)| i);
+    Ok(all.into_iter().map(|(_, t)| t).collect())
 }
 
 /// Settles frame `i`: its direct fit if good enough, else a chain through a registered frame
@@ -466,5 +504,44 @@ impl Matcher<'_> {
             .collect();
         let seed = self.p.seed ^ ((a as u64) << 32 | b as u64);
         ransac::ransac_affine(&pairs, self.threshold, self.p.ransac_iterations, seed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn workers_give_every_frame_in_order_keep_their_state_and_stop_at_an_error() {
+        for at_once in [1, 2, 5] {
+            // Each worker counts the frames it has taken: its state goes from frame to frame.
+            let out = in_workers(
+                7,
+                at_once,
+                || 0,
+                |taken, i| {
+                    *taken += 1;
+                    Ok((i * 10, *taken))
+                },
+            )
+            .unwrap();
+            let frames: Vec<usize> = out.iter().map(|o| o.0).collect();
+            assert_eq!(frames, [0, 10, 20, 30, 40, 50, 60]);
+            // Every worker's first frame counts 1: no more than the workers allowed at once.
+            let firsts = out.iter().filter(|o| o.1 == 1).count();
+            assert!((1..=at_once).contains(&firsts), "{at_once}: {out:?}");
+            assert!(out.iter().any(|o| o.1 > 1), "{at_once}: {out:?}");
+            let failed = in_workers(
+                7,
+                at_once,
+                || (),
+                |_, i| match i {
+                    3 => Err(RegisterError::Cancelled),
+                    _ => Ok(i),
+                },
+            );
+            assert_eq!(failed, Err(RegisterError::Cancelled));
+        }
+        assert_eq!(in_workers(0, 2, || (), |_, i| Ok(i)), Ok(vec![]));
     }
 }
