@@ -33,19 +33,18 @@ pub(crate) fn gaussian_half(sigma: f32) -> Vec<f32> {
 
 /// Gaussian blur with replicated edges; σ ≤ 0 returns a copy.
 pub fn gaussian_blur(src: &Plane, sigma: f32) -> Plane {
-    if sigma <= 0.0 {
-        return src.clone();
-    }
-    convolve_separable(src, &gaussian_kernel(sigma))
+    let mut dst = Plane::from_vec(0, 0, 1, Vec::new());
+    gaussian_blur_into(src, sigma, &mut dst);
+    dst
 }
 
 /// [`gaussian_blur`] into `dst`, whose buffer is reused (resized to `src`'s): for a stage that
 /// blurs every frame of a stack at one size.
 pub fn gaussian_blur_into(src: &Plane, sigma: f32, dst: &mut Plane) {
-    debug_assert_eq!(src.channels, 1);
     if sigma <= 0.0 {
         return dst.clone_from(src);
     }
+    debug_assert_eq!(src.channels, 1);
     let (w, h) = (src.width, src.height);
     (dst.width, dst.height, dst.channels) = (w, h, 1);
     dst.data.resize(w * h, 0.0);

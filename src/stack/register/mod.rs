@@ -276,7 +276,12 @@ pub fn register_with<T: Sample>(
             false => Ok(()),
         }
     };
-    let frames = in_batches(n, at_once, |i| prepare(i).and_then(|f| step().map(|()| f)))?;
+    let frames = in_workers(
+        n,
+        at_once,
+        || (),
+        |(), i| prepare(i).and_then(|f| step().map(|()| f)),
+    )?;
     let m = Matcher {
         frames: &frames,
         p,
@@ -361,28 +366,10 @@ pub fn register_with<T: Sample>(
     Ok(reg)
 }
 
-/// `f` of every frame 0..n, `at_once` frames in parallel at a time (what the memory plan allows
-/// to be held at once), in order; the first error stops it.
-fn in_batches<T: Send>(
-    n: usize,
-    at_once: usize,
-    f: impl Fn(usize) -> Result<T, RegisterError> + Sync,
-) -> Result<Vec<T>, RegisterError> {
-    let mut out = Vec::with_capacity(n);
-    for start in (0..n).step_by(at_once) {
-        let batch: Vec<T> = (start..(start + at_once).min(n))
-            .into_par_iter()
-            .map(&f)
-            .collect::<Result<_, _>>()?;
-        out.extend(batch);
-    }
-    Ok(out)
-}
-
-/// `f` of every frame 0..n, in order, as [`in_batches`] at most `at_once` frames at a time,
-/// but by workers (no more than there are threads) that each keep a state made by `init`
-/// from one frame to the next (buffers the same size for every frame) and take the next frame
-/// as they come free; the first error stops them.
+/// `f` of every frame 0..n, in order, at most `at_once` frames at a time (what the memory plan
+/// allows to be held at once), by workers (no more than there are threads) that each keep a
+/// state made by `init` from one frame to the next (buffers the same size for every frame)
+/// and take the next frame as they come free; the first error stops them.
 fn in_workers<S, T: Send>(
     n: usize,
     at_once: usize,
