@@ -4,7 +4,9 @@
 //! steps.png, transforms.json, stack.json; motion_NN.png when it was written with `--motion`).
 //! Prints the aligned depth oracle once (each pixel from the frame focused at its true depth,
 //! sampled where that frame truly shows it: by `motion_NN.png`, else by the affine alone; its
-//! gain from stack.json undone in the light the simulator applied it in), then
+//! gain from stack.json undone in the light the simulator applied it in) and the per-pixel best
+//! frame (each pixel from whichever frame, so sampled, is nearest the truth: a bound on any
+//! output that chooses among the frames), then
 //! per image: PSNR overall, in the band within 3σ of a depth step (σ the largest defocus blur,
 //! `max_sigma` in stack.json) and elsewhere, Tenengrad, and the ghost share
 //! (`focusd::stack::ghosts`).
@@ -17,7 +19,9 @@ use focusd::imageio::{load, load_rgb8, Decoded};
 use focusd::sim::render::Mixing;
 use focusd::stack::ghosts;
 use focusd::stack::image::Image;
-use focusd::stack::metrics::{depth_oracle, psnr, psnr_where, step_band, tenengrad};
+use focusd::stack::metrics::{
+    best_frame_oracle, depth_oracle, psnr, psnr_where, step_band, tenengrad,
+};
 use focusd::stack::transform::Transforms;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -95,6 +99,7 @@ fn sim(dir: &Path, images: &[PathBuf]) -> Result<()> {
         255.0 * light.to_display(light.from_display(v / 255.0) / gains[k][c.min(2)])
     };
     let oracle = depth_oracle(&frames, &labels, at, undo);
+    let best = best_frame_oracle(&frames, &truth, at, undo);
     let line = |name: &str, img: &Image<u8>, with_ghosts: bool| {
         let inb = psnr_where(img, &truth, |x, y| band[y * w + x]);
         let out = psnr_where(img, &truth, |x, y| !band[y * w + x]);
@@ -124,6 +129,7 @@ fn sim(dir: &Path, images: &[PathBuf]) -> Result<()> {
         }
     );
     line("aligned depth oracle", &oracle, false);
+    line("per-pixel best frame (bound on any choice)", &best, false);
     for path in images {
         let img = load_rgb8(path)?;
         if !img.same_geometry(&truth) {

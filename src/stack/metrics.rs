@@ -132,29 +132,69 @@ pub fn depth_oracle(
     at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
     undo: impl Fn(usize, usize, f32) -> f32 + Sync,
 ) -> Image<u8> {
+    oracle(frames, at, undo, |x, y, _| {
+        labels[y * frames[0].width + x] as usize
+    })
+}
+
+/// The per-pixel best frame: each pixel copied from whichever frame, sampled and undone as in
+/// [`depth_oracle`], is nearest to `truth` there (squared error over the channels). A bound on
+/// every output that chooses among the frames pixel by pixel, however it chooses: it also picks
+/// the frame whose noise happens to lie nearest, which no real choice can, so only un-mixing,
+/// denoising or deblurring (pixels no frame holds) can score above it.
+pub fn best_frame_oracle(
+    frames: &[Image<u8>],
+    truth: &Image<u8>,
+    at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
+    undo: impl Fn(usize, usize, f32) -> f32 + Sync,
+) -> Image<u8> {
+    let ch = truth.channels;
+    oracle(frames, at, undo, |x, y, candidates: &[Vec<u8>]| {
+        let error = |px: &[u8]| -> u32 {
+            (0..ch)
+                .map(|c| (px[c] as i32 - truth.at(x, y, c) as i32).pow(2) as u32)
+                .sum()
+        };
+        (0..candidates.len())
+            .min_by_key(|&k| error(&candidates[k]))
+            .unwrap_or(0)
+    })
+}
+
+/// Each pixel from the frame `choose(x, y, samples)` names, given every frame's sample there
+/// (each frame sampled bicubically where `at` says it shows the pixel, its gain undone).
+fn oracle(
+    frames: &[Image<u8>],
+    at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
+    undo: impl Fn(usize, usize, f32) -> f32 + Sync,
+    choose: impl Fn(usize, usize, &[Vec<u8>]) -> usize + Sync,
+) -> Image<u8> {
     let f0 = &frames[0];
     let (w, h, ch) = (f0.width, f0.height, f0.channels);
     let mut data = vec![0u8; w * h * ch];
     data.par_chunks_mut(w * ch)
         .enumerate()
         .for_each(|(y, row)| {
+            let mut samples = vec![vec![0u8; ch]; frames.len()];
             for x in 0..w {
-                let k = labels[y * w + x] as usize;
-                let f = &frames[k];
-                let (u, v) = at(k, x, y);
-                let (u, v) = (u.clamp(0.0, (w - 1) as f32), v.clamp(0.0, (h - 1) as f32));
-                let (x0, y0) = (u.floor() as usize, v.floor() as usize);
-                let (kx, ky) = (keys(u - x0 as f32), keys(v - y0 as f32));
-                let tap = |o: usize, i: usize, n: usize| (o + i).saturating_sub(1).min(n - 1);
-                for c in 0..ch {
-                    let mut acc = 0.0f32;
-                    for (j, wy) in ky.iter().enumerate() {
-                        for (i, wx) in kx.iter().enumerate() {
-                            acc += wx * wy * f.at(tap(x0, i, w), tap(y0, j, h), c) as f32;
+                for (k, (f, s)) in frames.iter().zip(&mut samples).enumerate() {
+                    let (u, v) = at(k, x, y);
+                    let (u, v) = (u.clamp(0.0, (w - 1) as f32), v.clamp(0.0, (h - 1) as f32));
+                    let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+                    let (kx, ky) = (keys(u - x0 as f32), keys(v - y0 as f32));
+                    let tap = |o: usize, i: usize, n: usize| (o + i).saturating_sub(1).min(n - 1);
+                    for (c, s) in s.iter_mut().enumerate() {
+                        let mut acc = 0.0f32;
+                        for (j, wy) in ky.iter().enumerate() {
+                            for (i, wx) in kx.iter().enumerate() {
+                                acc += wx * wy * f.at(tap(x0, i, w), tap(y0, j, h), c) as f32;
+                            }
                         }
+                        *s = undo(k, c, acc).round().clamp(0.0, 255.0) as u8;
                     }
-                    row[x * ch + c] = undo(k, c, acc).round().clamp(0.0, 255.0) as u8;
                 }
+                let k = choose(x, y, &samples);
+                row[x * ch..(x + 1) * ch].copy_from_slice(&samples[k]);
             }
         });
     Image::from_vec(w, h, ch, data)
@@ -215,5 +255,22 @@ mod tests {
         );
         assert_eq!(o.at(1, 0, 0), 15);
         assert_eq!(o.at(5, 2, 0), 51);
+    }
+
+    #[test]
+    fn best_frame_oracle_takes_each_pixel_from_the_frame_nearest_the_truth() {
+        // Frame 0 is right on the left half, frame 1 on the right half, each 40 off elsewhere.
+        let truth = Image::<u8>::from_fn(8, 4, 1, |x, y, _| (20 * x + y) as u8);
+        let off = |right: bool| {
+            Image::<u8>::from_fn(8, 4, 1, |x, y, _| {
+                (20 * x + y) as u8 + if (x >= 4) == right { 0 } else { 40 }
+            })
+        };
+        let at = |_: usize, x: usize, y: usize| (x as f32, y as f32);
+        let o = best_frame_oracle(&[off(false), off(true)], &truth, at, |_, _, v| v);
+        assert_eq!(o.data, truth.data);
+        // One frame alone is what it is, wherever it is off.
+        let o = best_frame_oracle(&[off(true)], &truth, at, |_, _, v| v);
+        assert_eq!(o.data, off(true).data);
     }
 }
