@@ -604,7 +604,7 @@ fn fit(
     depths[..fitted].sort_by_cached_key(|&k| {
         std::cmp::Reverse(interiors[k].iter().filter(|&&d| d > first).count())
     });
-    let (probes, rest) = depths.split_at(probes.min(fitted));
+    let (probed, rest) = depths.split_at(probes.min(fitted));
     let fit_depths = |lumas: &[Plane], depths: &[usize]| -> Vec<(Pair, f64)> {
         let mut fits: Vec<(Pair, f64)> = depths
             .par_iter()
@@ -623,7 +623,7 @@ fn fit(
             .then(|| fits.iter().map(|(_, r)| r.max(1e-12).ln()).sum::<f64>() / fits.len() as f64)
     };
     let [(light_a, lumas_a), (light_b, lumas_b)] = lights;
-    let (mut a, mut b) = (fit_depths(&lumas_a, probes), fit_depths(&lumas_b, probes));
+    let (mut a, mut b) = (fit_depths(&lumas_a, probed), fit_depths(&lumas_b, probed));
     let told = match (score(&a), score(&b)) {
         (Some(sa), Some(sb)) if (sa - sb).abs() > CLEAR => Some(sa <= sb),
         _ => None,
@@ -1093,6 +1093,8 @@ mod tests {
     use std::sync::Mutex;
 
     const SIZE: usize = 160;
+    const CENTRE: f32 = 80.0;
+    const RADIUS: f32 = 40.0;
 
     /// A pair as the fit gives it.
     fn fitted(near: u8, far: u8, sigma: f32) -> Pair {
@@ -1103,8 +1105,6 @@ mod tests {
             predicted: false,
         }
     }
-    const CENTRE: f32 = 80.0;
-    const RADIUS: f32 = 40.0;
 
     /// A textured disc (the near object) over a textured background, seen by three frames:
     /// focused on the disc (the background blurred by 3 px), between (disc 2, background
