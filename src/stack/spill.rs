@@ -1432,16 +1432,15 @@ mod tests {
     /// already in order are kept.
     #[test]
     fn a_fit_short_of_its_neighbours_is_raised_to_them() {
-        let pair = fitted;
-        let fitted = vec![
-            pair(0, 2, 4.0),
-            pair(0, 3, 4.0),
-            pair(0, 4, 4.0),
-            pair(1, 3, 4.5),
-            pair(1, 4, 6.5),
-            pair(2, 4, 3.0),
+        let pairs = vec![
+            fitted(0, 2, 4.0),
+            fitted(0, 3, 4.0),
+            fitted(0, 4, 4.0),
+            fitted(1, 3, 4.5),
+            fitted(1, 4, 6.5),
+            fitted(2, 4, 3.0),
         ];
-        let raised: Vec<(u8, u8, f32)> = monotone(fitted, 5)
+        let raised: Vec<(u8, u8, f32)> = monotone(pairs, 5)
             .iter()
             .map(|p| (p.near, p.far, p.sigma))
             .collect();
@@ -1573,15 +1572,14 @@ mod tests {
         let mixed: Vec<Vec<Plane>> = (0..5)
             .map(|k| (0..3).map(|c| plane(3 * k + c)).collect())
             .collect();
-        let pair = fitted;
         // Near depths 0 and 2 share σ 6 px in far frame 3 and again in far frame 4.
         let pairs = [
-            pair(0, 3, 6.0),
-            pair(1, 3, 4.0),
-            pair(2, 3, 6.0),
-            pair(0, 4, 6.0),
-            pair(1, 4, 5.0),
-            pair(2, 4, 6.0),
+            fitted(0, 3, 6.0),
+            fitted(1, 3, 4.0),
+            fitted(2, 3, 6.0),
+            fitted(0, 4, 6.0),
+            fitted(1, 4, 5.0),
+            fitted(2, 4, 6.0),
         ];
         let factor = 2;
         let mut blurs = Blurs::new(&pairs, 5, 3);
