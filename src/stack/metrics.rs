@@ -132,9 +132,12 @@ pub fn depth_oracle(
     at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
     undo: impl Fn(usize, usize, f32) -> f32 + Sync,
 ) -> Image<u8> {
-    oracle(frames, at, undo, |x, y, _| {
-        labels[y * frames[0].width + x] as usize
-    })
+    let w = frames[0].width;
+    let one = |x: usize, y: usize| {
+        let k = labels[y * w + x] as usize;
+        k..k + 1
+    };
+    oracle(frames, at, undo, one, |_, _, _| 0)
 }
 
 /// The per-pixel best frame: each pixel copied from whichever frame, sampled and undone as in
@@ -148,26 +151,24 @@ pub fn best_frame_oracle(
     at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
     undo: impl Fn(usize, usize, f32) -> f32 + Sync,
 ) -> Image<u8> {
-    let ch = truth.channels;
-    oracle(frames, at, undo, |x, y, candidates: &[Vec<u8>]| {
-        let error = |px: &[u8]| -> u32 {
-            (0..ch)
-                .map(|c| (px[c] as i32 - truth.at(x, y, c) as i32).pow(2) as u32)
-                .sum()
-        };
-        (0..candidates.len())
-            .min_by_key(|&k| error(&candidates[k]))
-            .unwrap_or(0)
-    })
+    let error = |x: usize, y: usize, px: &[u8]| -> u32 {
+        px.iter()
+            .enumerate()
+            .map(|(c, &v)| (v as i32 - truth.at(x, y, c) as i32).pow(2) as u32)
+            .sum()
+    };
+    oracle(frames, at, undo, |_, _| 0..frames.len(), error)
 }
 
-/// Each pixel from the frame `choose(x, y, samples)` names, given every frame's sample there
-/// (each frame sampled bicubically where `at` says it shows the pixel, its gain undone).
+/// Each pixel from whichever of the frames `candidates(x, y)` gives the least
+/// `error(x, y, sample)` (the first on a tie), each frame sampled bicubically where `at` says it
+/// shows the pixel, its gain undone by `undo`. Only the candidates are sampled.
 fn oracle(
     frames: &[Image<u8>],
     at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
     undo: impl Fn(usize, usize, f32) -> f32 + Sync,
-    choose: impl Fn(usize, usize, &[Vec<u8>]) -> usize + Sync,
+    candidates: impl Fn(usize, usize) -> std::ops::Range<usize> + Sync,
+    error: impl Fn(usize, usize, &[u8]) -> u32 + Sync,
 ) -> Image<u8> {
     let f0 = &frames[0];
     let (w, h, ch) = (f0.width, f0.height, f0.channels);
@@ -175,15 +176,17 @@ fn oracle(
     data.par_chunks_mut(w * ch)
         .enumerate()
         .for_each(|(y, row)| {
-            let mut samples = vec![vec![0u8; ch]; frames.len()];
+            let mut sample = vec![0u8; ch];
             for x in 0..w {
-                for (k, (f, s)) in frames.iter().zip(&mut samples).enumerate() {
+                let mut best = u32::MAX;
+                for k in candidates(x, y) {
+                    let f = &frames[k];
                     let (u, v) = at(k, x, y);
                     let (u, v) = (u.clamp(0.0, (w - 1) as f32), v.clamp(0.0, (h - 1) as f32));
                     let (x0, y0) = (u.floor() as usize, v.floor() as usize);
                     let (kx, ky) = (keys(u - x0 as f32), keys(v - y0 as f32));
                     let tap = |o: usize, i: usize, n: usize| (o + i).saturating_sub(1).min(n - 1);
-                    for (c, s) in s.iter_mut().enumerate() {
+                    for (c, s) in sample.iter_mut().enumerate() {
                         let mut acc = 0.0f32;
                         for (j, wy) in ky.iter().enumerate() {
                             for (i, wx) in kx.iter().enumerate() {
@@ -192,9 +195,12 @@ fn oracle(
                         }
                         *s = undo(k, c, acc).round().clamp(0.0, 255.0) as u8;
                     }
+                    let e = error(x, y, &sample);
+                    if e < best {
+                        best = e;
+                        row[x * ch..(x + 1) * ch].copy_from_slice(&sample);
+                    }
                 }
-                let k = choose(x, y, &samples);
-                row[x * ch..(x + 1) * ch].copy_from_slice(&samples[k]);
             }
         });
     Image::from_vec(w, h, ch, data)
