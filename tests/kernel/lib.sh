@@ -1,16 +1,15 @@
-# Shared by run-vivid and run-vimc: boots Debian's own kernel (downloaded and unpacked, not
-# installed) in qemu with TCG, from an initramfs holding busybox, the test's kernel modules with
-# their dependencies, and an example binary with its shared libraries.
+# Shared by run-vivid, run-vimc and run-keys: boots Debian's own kernel (downloaded and unpacked,
+# not installed) in qemu with TCG, from an initramfs holding busybox, the test's kernel modules
+# with their dependencies, and a test harness (tests/kernel/<suite>.rs) with its shared libraries.
 #
-# The runner sets `suite` (vivid, vimc: the marker prefix and the example's name) and calls, in
-# order: `kernel` (the kernel package, cached in target/kernel/<version>/), `add_module NAME`
-# for each module the guest loads (resolved with its dependencies through modules.dep, or an
-# out-of-tree .ko path) with `module_params NAME "..."` where needed, `build_example`, then
-# `boot "<shell lines run in the guest after the modules are loaded>"` (before it, `add_binary`
-# puts another host program into the guest, and the runner may copy files under "$ird"), which
-# exits 0 only when
-# the guest printed `<SUITE>-RESULT: PASS` as often as `expect_passes` says (default 1) and
-# every `<SUITE>-EXIT ...: N` line has N = 0.
+# The runner sets `suite` (vivid, vimc, keys: the marker prefix and the harness's name) and
+# calls, in order: `kernel` (the kernel package, cached in target/kernel/<version>/),
+# `add_module NAME` for each module the guest loads (resolved with its dependencies through
+# modules.dep, or an out-of-tree .ko path) with `module_params NAME "..."` where needed,
+# `build_harness`, then `boot "<shell lines run in the guest after the modules are loaded>"`
+# (before it, `add_binary` puts another host program into the guest, and the runner may copy
+# files under "$ird"), which exits 0 only when the guest printed `<SUITE>-RESULT: PASS` as often
+# as `expect_passes` says (default 1) and every `<SUITE>-EXIT ...: N` line has N = 0.
 # Environment: KERNEL_TEST_TIMEOUT (seconds, default 300), KERNEL_TEST_KEEP=1 keeps the work
 # directory. Needs: qemu-system-x86 busybox-static kmod (depmod), apt, the Rust toolchain.
 set -euo pipefail
@@ -111,8 +110,10 @@ add_module() {
 
 module_params() { params[$1.ko]=$2; }
 
-build_example() {
-    say "building examples/$suite.rs"
+# The harnesses are example targets of the main package (see Cargo.toml), built as `cargo test`
+# builds them.
+build_harness() {
+    say "building tests/kernel/$suite.rs"
     cargo build --quiet --example "$suite"
     bin=$target/debug/examples/$suite
     [ -x "$bin" ] || die "$bin was not built"

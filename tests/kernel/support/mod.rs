@@ -1,5 +1,5 @@
-//! What the kernel-driver examples (vivid, vimc) share: the check macro, the `ok:` lines and the
-//! result marker their qemu runners (tests/kernel/) look for.
+//! What the kernel test harnesses (vivid, vimc, keys) share: the check macro, the `ok:` lines and
+//! the result marker their qemu runners (run-vivid, run-vimc, run-keys) look for.
 
 pub type Check = Result<(), String>;
 
