@@ -1,5 +1,5 @@
-//! Registration speed on a hand-held 10 × 3 MP stack (2048x1536, a phone sweep): the issue's
-//! budget is 1 s on 2 cores; with and without local registration (on by default).
+//! Registration speed on a hand-held 10 × 3 MP stack (2048x1536, a phone sweep), whose budget is
+//! 1 s on 2 cores; with and without local registration (on by default).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use focusd::sim::{render, SimParams};

@@ -23,7 +23,7 @@
 //! interpolation: Kiku, Monno, Tanaka and Okutomi, "Beyond color difference", IEEE TIP 2016;
 //! see [`residual_fill`]), so that windows straddling an edge count little.
 //!
-//! Measured on the simulator's scenes (the tests print the figures; `examples/demosaic.rs`
+//! Measured on the simulator's scenes (the tests print the figures; `benches/tools/demosaic.rs`
 //! gives them all): 3-4 dB above Malvar, He and Cutler's linear filters, which focusd used
 //! first and which the tests keep as the baseline. The directional green is worth 1.0-1.4 dB
 //! over Hamilton and Adams' single-direction choice, which this used before (33.6 against 32.3

@@ -1,6 +1,6 @@
 //! The scenes the demosaic is measured on (`src/develop`'s tests, `tests/develop.rs`,
-//! `examples/demosaic.rs`): one definition each, so that the figures the example prints are of
-//! the pictures the tests assert on.
+//! `benches/tools/demosaic.rs`): one definition each, so that the figures the tool prints are
+//! of the pictures the tests assert on.
 
 use super::SimParams;
 use crate::stack::image::Image;

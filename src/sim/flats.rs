@@ -27,7 +27,7 @@ pub struct FlatsParams {
     /// Textured patches, the k-th in focus in frame k mod `frames`; `None`: two per frame. The
     /// patches are drawn in the same order whatever the frame count, so a stack of 25 frames
     /// with the 16 patches of an 8-frame stack shows the same scene: what the labelling's
-    /// growth with the frame count is measured on (`scripts/bench-report`), apart from the
+    /// growth with the frame count is measured on (`benches/bench-report`), apart from the
     /// growth with the depth steps that more patches bring.
     pub patches: Option<usize>,
 }

@@ -5,7 +5,7 @@
 //! focus maps are recomputed per band of rows instead of held whole, and registration prepares
 //! fewer frames at once. Below what even the smallest bands need, the fuse still runs, in the
 //! smallest bands: a phone that swaps is slower, one whose job aborted has nothing. Estimates are
-//! in bytes and are checked against `/usr/bin/time -v` by `scripts/bench-memory`.
+//! in bytes and are checked against `/usr/bin/time -v` by `benches/bench-memory`.
 
 use super::align::{warp_lanes, warp_scratch_rows};
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};

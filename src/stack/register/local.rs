@@ -45,7 +45,7 @@ const ITERATIONS: usize = 8;
 /// A level's iterations stop early once fewer than `SETTLED.1` of its pixels still moved by
 /// `SETTLED.0` level pixels or more in the last step. On stacks without local motion most pairs
 /// settle in one or two steps of the eight; where parallax moves a near object its pixels keep
-/// moving and the level runs on. Measured against always eight (`scripts/bench-quality`,
+/// moving and the level runs on. Measured against always eight (`benches/bench-quality`,
 /// 2026-12-05): the parallax stacks' PSNR 26.77 → 26.81 and 26.64 → 26.67 dB, the others the
 /// same; the register stage 8–20 % faster on 0.3–1.9 MP stacks. Four fixed steps instead lost
 /// accuracy where a near object moves (tests/register.rs).

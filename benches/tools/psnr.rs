@@ -1,5 +1,5 @@
 //! PSNR against a ground-truth image, and Tenengrad sharpness, of fused images (used by
-//! `scripts/compare-enfuse`, and handy on any `focusd simulate` stack).
+//! `benches/compare-enfuse`, and handy on any `focusd simulate` stack).
 //!
 //! `psnr [--margin N] TRUTH IMAGE [IMAGE...]`
 //!

@@ -1,5 +1,5 @@
-//! Where the demosaic's error is, and what it costs: the figures issue 15 item 4 asks for, in
-//! one run, so that two builds can be compared back to back.
+//! Where the demosaic's error is, and what it costs, in one run, so that two builds can be
+//! compared back to back.
 //!
 //! `demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N]`
 //!

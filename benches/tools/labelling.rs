@@ -5,8 +5,7 @@
 //! generated flats stack of 8 frames of 1152×864) once per setting and run, and prints the median
 //! labelling and whole-fuse times and the energy of each setting's labels, computed by
 //! `focusd::stack::graphcut::labelling_energy` on the aligned frames, with their ratio. The
-//! spill removal is off: it moves labels afterwards on colour evidence the energy does not hold
-//! (on ring_macro the ratio was 1.069 with it, 0.976 without).
+//! spill removal is off: it moves labels afterwards on colour evidence the energy does not hold.
 //!
 //! `labelling flats DIR [--frames N] [--width W] [--height H] [--seed S] [--noise SIGMA]
 //! [--patches N]`: writes a flats stack (`focusd::sim::flats`: smooth regions plus noise where

@@ -1,4 +1,5 @@
-//! Quality figures of fused images for issue 13's targets (used by `scripts/bench-quality`).
+//! Quality figures of fused images: halos at depth steps and ghosts (used by
+//! `benches/bench-quality`).
 //!
 //! `quality sim DIR IMAGE...`: DIR is a `focusd simulate` stack (frames, truth.png, depth.png,
 //! steps.png, transforms.json, stack.json; motion_NN.png when it was written with `--motion`).
