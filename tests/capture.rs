@@ -5,16 +5,12 @@
 use focusd::backend::replay::{self, Bundle, BundleWriter};
 use focusd::capture::sweep::{sweep, OnExhausted, Sweep, SweepConfig, Unmonitored};
 use focusd::capture::{CaptureError, ImuSample, Sensor};
-use focusd::stack::image::Image;
 use focusd::stack::metrics::psnr;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-fn bundle_dir(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("sim-data/bundles")
-        .join(name)
-}
+mod common;
+use common::stacks::{bundle_dir, load};
 
 fn config(planes: usize, on_exhausted: OnExhausted) -> SweepConfig {
     SweepConfig {
@@ -27,12 +23,6 @@ fn config(planes: usize, on_exhausted: OnExhausted) -> SweepConfig {
 fn replay(name: &str, cfg: &SweepConfig) -> Result<Sweep, CaptureError> {
     let (mut cam, mut imu, clock) = replay::open(Bundle::open(&bundle_dir(name)).unwrap());
     sweep(&mut cam, &mut imu, &clock, cfg, &Unmonitored)
-}
-
-fn load(path: &Path) -> Image<u8> {
-    let img = image::open(path).unwrap().to_rgb8();
-    let (w, h) = img.dimensions();
-    Image::from_vec(w as usize, h as usize, 3, img.into_raw())
 }
 
 /// (plane, take, accepted) of every take tried.

@@ -2,16 +2,11 @@
 //! `--crop`, and an unrelated frame refused by name.
 
 use focusd::stack::transform::Transforms;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Output};
 
-fn handheld() -> (Vec<PathBuf>, Transforms) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/handheld");
-    let t: Transforms =
-        serde_json::from_slice(&std::fs::read(dir.join("transforms.json")).unwrap()).unwrap();
-    let files = t.frames.iter().map(|f| dir.join(&f.file)).collect();
-    (files, t)
-}
+mod common;
+use common::stacks::{handheld, sim_data};
 
 fn fuse(args: &[&str], frames: &[PathBuf]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_focusd"))
@@ -62,7 +57,7 @@ fn saved_transforms_are_within_a_third_of_a_pixel_and_crop_shrinks() {
 #[test]
 fn unrelated_frame_is_refused_by_name() {
     let (mut frames, _) = handheld();
-    let other = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/aligned/frame_03.jpg");
+    let other = sim_data("aligned/frame_03.jpg");
     frames[5] = other;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.jpg");

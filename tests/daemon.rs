@@ -4,10 +4,11 @@
 
 mod common;
 
-use common::{
-    bundle_dir, busctl, capture_and_wait, connect, dbus_error, load, outcome, runtime, subscribe,
-    Bus, Daemon,
+use common::daemon::{
+    busctl, capture_and_wait, connect, dbus_error, outcome, runtime, subscribe, Bus, Daemon,
 };
+use common::stacks::{bundle_dir, load};
+use common::system::is_root;
 use focusd::stack::metrics::psnr;
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
@@ -259,8 +260,7 @@ fn sigterm_at(stage: &str) {
 
 #[test]
 fn only_the_user_who_started_a_job_or_root_may_cancel_it() {
-    // SAFETY: geteuid has no preconditions.
-    if unsafe { libc::geteuid() } != 0 {
+    if !is_root() {
         eprintln!("skipped: calling as another user needs root (CI runs as root)");
         return;
     }

@@ -5,9 +5,12 @@
 
 mod common;
 
-use common::{
-    bundle_dir, busctl, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon, Notify,
+use common::daemon::{
+    busctl, capture_and_wait, connect, outcome, runtime, subscribe, Bus, Daemon, Notify,
 };
+use common::iio::Tree;
+use common::stacks::bundle_dir;
+use common::system::is_root;
 use futures_util::StreamExt;
 use std::path::Path;
 use std::process::Command;
@@ -125,14 +128,6 @@ fn a_full_disk_fails_the_job_without_leaving_a_partial_file() {
     }
 }
 
-/// Whether this process runs as root, without a libc binding: `id -u`.
-fn is_root() -> bool {
-    Command::new("id")
-        .arg("-u")
-        .output()
-        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
-}
-
 #[test]
 fn two_triggers_at_once_get_one_job_and_one_busy() {
     let bus = Bus::start();
@@ -222,11 +217,9 @@ fn calls_with_wrong_arguments_are_refused_and_the_daemon_keeps_serving() {
 /// (with nothing written) by the returned file: the job's read of it blocks for as long as the
 /// test keeps it, as a read of a hung driver's attribute does. (The files focusd parses, a
 /// bundle's, are refused when they are FIFOs; an attribute is the kernel's.)
-fn sysfs_with_a_blocking_attribute() -> (tempfile::TempDir, std::fs::File) {
-    let tree = tempfile::tempdir().unwrap();
-    let device = tree.path().join("sys/bus/iio/devices/iio:device0");
-    std::fs::create_dir_all(&device).unwrap();
-    let name = device.join("name");
+fn sysfs_with_a_blocking_attribute() -> (Tree, std::fs::File) {
+    let tree = Tree::new();
+    let name = tree.device_dir(0).join("name");
     let made = Command::new("mkfifo").arg(&name).status().unwrap();
     assert!(made.success(), "mkfifo");
     // Read and write: opening a FIFO so does not wait for a reader.
@@ -260,7 +253,7 @@ fn blocked_job(how: Blocked) {
     let bus = Bus::start();
     let tables = format!(
         "[imu]\nsysfs_root = {:?}\n[service]\nstall_timeout_s = 2\n",
-        sysfs.path().join("sys")
+        sysfs.sys()
     );
     let mut d = Daemon::start_full(
         &bus,

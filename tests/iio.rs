@@ -7,48 +7,9 @@ use focusd::backend::sys::monotonic_now;
 use focusd::capture::{Imu, ImuSample, Sensor};
 use std::fs;
 use std::path::{Path, PathBuf};
-use tempfile::TempDir;
 
-struct Tree {
-    dir: TempDir,
-}
-
-impl Tree {
-    fn new() -> Tree {
-        let t = Tree {
-            dir: tempfile::tempdir().unwrap(),
-        };
-        fs::create_dir_all(t.dir.path().join("dev")).unwrap();
-        fs::create_dir_all(t.sys().join("bus/iio/devices/trigger0")).unwrap();
-        t
-    }
-
-    fn sys(&self) -> PathBuf {
-        self.dir.path().join("sys")
-    }
-
-    fn device(&self, n: u32, name: &str, files: &[(&str, &str)]) -> PathBuf {
-        let d = self.sys().join(format!("bus/iio/devices/iio:device{n}"));
-        fs::create_dir_all(&d).unwrap();
-        fs::write(d.join("name"), format!("{name}\n")).unwrap();
-        for (rel, content) in files {
-            write(&d.join(rel), content);
-        }
-        d
-    }
-
-    fn config(&self) -> IioConfig {
-        IioConfig {
-            sysfs_root: self.sys(),
-            ..IioConfig::default()
-        }
-    }
-}
-
-fn write(path: &Path, content: &str) {
-    fs::create_dir_all(path.parent().unwrap()).unwrap();
-    fs::write(path, format!("{content}\n")).unwrap();
-}
+mod common;
+use common::iio::{write, Tree};
 
 fn read(path: &Path) -> String {
     fs::read_to_string(path).unwrap().trim().to_string()

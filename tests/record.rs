@@ -4,14 +4,12 @@
 use focusd::backend::replay::{self, Bundle};
 use focusd::capture::sweep::{sweep, Sweep, Unmonitored};
 use focusd::capture::CaptureError;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn bundle_dir(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("sim-data/bundles")
-        .join(name)
-}
+mod common;
+use common::iio::Tree;
+use common::stacks::bundle_dir;
 
 fn focusd(args: &[&str], paths: &[&Path]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_focusd"))
@@ -161,15 +159,10 @@ fn config_files_are_checked_naming_the_line() {
 
 #[test]
 fn without_a_camera_capture_names_what_is_missing() {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("fake.toml");
+    let tree = Tree::new();
+    let cfg = tree.dir.path().join("fake.toml");
     // An IMU tree with no devices: the error names the sysfs directory.
-    std::fs::create_dir_all(dir.path().join("sys/bus/iio/devices")).unwrap();
-    std::fs::write(
-        &cfg,
-        format!("[imu]\nsysfs_root = {:?}\n", dir.path().join("sys")),
-    )
-    .unwrap();
+    std::fs::write(&cfg, format!("[imu]\nsysfs_root = {:?}\n", tree.sys())).unwrap();
     let o = focusd(&["capture", "-o", "x.jpg", "--config"], &[&cfg]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");

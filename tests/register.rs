@@ -1,8 +1,6 @@
 //! Registration of hand-held stacks against the simulator's true affines.
 
 use focusd::imageio::{load, Decoded};
-use focusd::sim::render::{render_scene, true_positions};
-use focusd::sim::scene::Scene;
 use focusd::sim::{render, SimParams};
 use focusd::stack::fuse::fuse;
 use focusd::stack::image::Plane;
@@ -11,10 +9,14 @@ use focusd::stack::params::FuseParams;
 use focusd::stack::register::{
     register, register_with, Placement, RegisterError, RegisterParams, Registration,
 };
-use focusd::stack::transform::{Affine, Transforms, Warp};
+use focusd::stack::transform::{Affine, Transforms};
 use focusd::stack::{NoProgress, Progress, Stage};
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
+
+mod common;
+use common::parallax::{layered, local_effect, sharp_displacement_rms};
+use common::stacks::sim_data;
 
 fn load_luma(path: &Path) -> Plane {
     match load(path).unwrap() {
@@ -25,15 +27,8 @@ fn load_luma(path: &Path) -> Plane {
 
 /// The committed hand-held stack: its lumas and true transforms.
 fn handheld() -> (Vec<Plane>, Transforms) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/handheld");
-    let json = std::fs::read_to_string(dir.join("transforms.json")).unwrap();
-    let t: Transforms = serde_json::from_str(&json).unwrap();
-    let lumas = t
-        .frames
-        .iter()
-        .map(|f| load_luma(&dir.join(&f.file)))
-        .collect();
-    (lumas, t)
+    let (files, t) = common::stacks::handheld();
+    (files.iter().map(|f| load_luma(f)).collect(), t)
 }
 
 /// Per frame corner error (px) of `reg` against `truth`.
@@ -53,7 +48,7 @@ fn committed_handheld_stack_within_a_third_of_a_pixel_where_each_frame_is_sharp(
     assert_eq!(reg.how[t.reference], Placement::Reference);
     // Where a frame is sharp is where it is fused; its affine follows that depth, so under the
     // stack's 1 px of parallax it may stray from the background's true affine at its corners.
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/handheld");
+    let dir = sim_data("handheld");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("stack.json")).unwrap()).unwrap();
     // It predates the simulator's later parameters; their defaults change no geometry.
@@ -156,7 +151,7 @@ fn blank_frame_takes_its_neighbours_pose() {
 #[test]
 fn unrelated_frame_is_named() {
     let (mut lumas, t) = handheld();
-    let other = Path::new(env!("CARGO_MANIFEST_DIR")).join("sim-data/aligned/frame_03.jpg");
+    let other = sim_data("aligned/frame_03.jpg");
     lumas[5] = load_luma(&other);
     let err = register(&lumas, t.reference, &RegisterParams::default()).unwrap_err();
     assert!(
@@ -237,81 +232,11 @@ fn registration_reports_each_frame_of_each_phase_and_stops_when_cancelled() {
     assert!(cancelled.done.load(Ordering::SeqCst) < 3 * n);
 }
 
-/// Per frame but the reference: the RMS distance (px) between where the registration and the
-/// truth send the reference pixels on which that frame is sharp (its plane is the true depth
-/// there, the layer is textured and fills the 5×5 window), with the local fields and with the
-/// affines alone.
-fn sharp_displacement_rms(p: &SimParams, reg: &Registration) -> Vec<(usize, f64, f64)> {
-    let scene = Scene::generate(p);
-    let r = render_scene(p, &scene);
-    let (w, h) = (p.width, p.height);
-    let own = &r.owner;
-    let depth = &r.stack.depth.data;
-    (0..p.planes)
-        .filter(|&i| i != r.stack.reference)
-        .map(|i| {
-            let truth = true_positions(p, &scene, &r, i);
-            let warp = Warp {
-                affine: reg.ref_to_frame[i],
-                field: reg.field[i].clone(),
-            };
-            let (mut with, mut without, mut n) = (0.0, 0.0, 0usize);
-            for y in 2..h - 2 {
-                for x in 2..w - 2 {
-                    let k = y * w + x;
-                    let li = own[k];
-                    if depth[k] as usize != i
-                        || !scene.layers[li].textured
-                        || !(y - 2..=y + 2)
-                            .all(|yy| (x - 2..=x + 2).all(|xx| own[yy * w + xx] == li))
-                    {
-                        continue;
-                    }
-                    let (tx, ty) = truth[k];
-                    let (ax, ay) = warp.affine.apply(x as f64, y as f64);
-                    let (fx, fy) = warp.apply(x as f64, y as f64);
-                    with += (fx - tx).powi(2) + (fy - ty).powi(2);
-                    without += (ax - tx).powi(2) + (ay - ty).powi(2);
-                    n += 1;
-                }
-            }
-            let n = n.max(1) as f64;
-            (i, (with / n).sqrt(), (without / n).sqrt())
-        })
-        .collect()
-}
-
-/// A hand-held 640×480 linear-light stack of 6 planes with `parallax` px of near-layer parallax.
-fn layered(seed: u64, parallax: f64) -> SimParams {
-    SimParams {
-        seed,
-        handheld: true,
-        parallax_px: parallax,
-        linear_light: true,
-        ..SimParams::default()
-    }
-}
-
-/// Registers `p`'s stack: per frame the displacement errors where it is sharp (with and without
-/// the local fields) and whether it got a field.
-fn local_effect(p: &SimParams) -> Vec<(usize, f64, f64, bool)> {
-    let s = render(p);
-    let lumas: Vec<Plane> = s.frames.iter().map(|f| f.luma()).collect();
-    let reg = register(&lumas, s.reference, &RegisterParams::default()).unwrap();
-    assert!(reg.field[s.reference].is_none());
-    sharp_displacement_rms(p, &reg)
-        .into_iter()
-        .map(|(i, with, without)| (i, with, without, reg.field[i].is_some()))
-        .collect()
-}
-
 #[test]
 fn local_fields_follow_parallax_where_frames_are_sharp() {
     // 6 px of parallax: the nearest frames, sharp on the near objects, move most against the
     // background; their local fields take the error where they are sharp well below the
     // affine's.
-    // 6 px of parallax (measured: the nearest frame from 1.49 to 0.86 px; its affine alone was
-    // 2.02 px off before the affines were fitted chiefly where each frame is sharp).
     let e = local_effect(&layered(23, 6.0));
     let near = e.iter().find(|f| f.0 == 0).unwrap();
     assert!(near.3, "{e:.2?}");
@@ -324,8 +249,7 @@ fn local_fields_follow_parallax_where_frames_are_sharp() {
     }
     // Without parallax the fields (where any survive) move little: each affine is fitted where
     // its own frame is sharp, so neighbours' affines disagree a little elsewhere and the chained
-    // flow sees that (measured: one frame from 0.14 to 0.25 px; the 1600×1200 tripod stack keeps
-    // no field at all).
+    // flow sees that.
     let flat = local_effect(&layered(21, 0.0));
     assert!(flat.iter().all(|f| f.1 <= f.2 + 0.15), "{flat:.2?}");
 }
@@ -345,24 +269,4 @@ fn fusion_with_local_registration_beats_the_affines_alone_under_parallax() {
     };
     let (on, off) = (fused(true), fused(false));
     assert!(on > off + 0.3, "{on:.2} dB with, {off:.2} dB without");
-}
-
-/// The per-frame figures at other sizes, for tuning:
-/// `cargo test --release --test register local_report -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn local_report() {
-    for (w, h, planes) in [(480, 360, 8), (640, 480, 8), (640, 480, 6)] {
-        let p = SimParams {
-            width: w,
-            height: h,
-            planes,
-            ..layered(23, 6.0)
-        };
-        for (i, with, without, kept) in local_effect(&p) {
-            println!(
-                "{w}x{h}x{planes} frame {i}: {without:.2} px affine, {with:.2} px local ({kept})"
-            );
-        }
-    }
 }

@@ -1,8 +1,7 @@
-//! What the daemon tests share: a private bus, `focusd serve` on it, a zbus client.
-#![allow(dead_code)] // each test crate uses a part
+//! The daemon's fixtures: a private bus, `focusd serve` on it, a zbus client, a systemd notify
+//! socket.
 
 use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy};
-use focusd::stack::image::Image;
 use futures_util::StreamExt;
 use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixDatagram;
@@ -12,12 +11,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tempfile::TempDir;
-
-pub fn bundle_dir(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("sim-data/bundles")
-        .join(name)
-}
 
 /// `busctl call` of a Focusd1 method on `bus`: `args` are the method, signature and values.
 pub fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
@@ -208,12 +201,6 @@ impl Drop for Daemon {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
-}
-
-pub fn load(path: &Path) -> Image<u8> {
-    let img = image::open(path).unwrap().to_rgb8();
-    let (w, h) = img.dimensions();
-    Image::from_vec(w as usize, h as usize, 3, img.into_raw())
 }
 
 pub fn runtime() -> tokio::runtime::Runtime {
