@@ -67,23 +67,28 @@ const HUGE_PAGE: usize = 2 << 20;
 // memory `System` has just handed out.
 unsafe impl GlobalAlloc for HugePages {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let p = System.alloc(layout);
+        // SAFETY: our caller's guarantees for `layout` are `System`'s.
+        let p = unsafe { System.alloc(layout) };
         advise(p, layout.size());
         p
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let p = System.alloc_zeroed(layout);
+        // SAFETY: our caller's guarantees for `layout` are `System`'s.
+        let p = unsafe { System.alloc_zeroed(layout) };
         advise(p, layout.size());
         p
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        System.dealloc(ptr, layout)
+        // SAFETY: `ptr` came from `System` through this allocator, with this `layout`.
+        unsafe { System.dealloc(ptr, layout) }
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let p = System.realloc(ptr, layout, new_size);
+        // SAFETY: `ptr` came from `System` through this allocator, with this `layout`; our
+        // caller's guarantees for `new_size` are `System`'s.
+        let p = unsafe { System.realloc(ptr, layout, new_size) };
         advise(p, new_size);
         p
     }

@@ -106,7 +106,7 @@ const BLOCKS: (usize, usize) = (12, 9);
 /// at 137k; at most 100k, sim-data's aligned and hand-held stacks' warp stage (this and the
 /// resampling) took 23.6 → 18.3 and 31.5 → 26.3 ms (medians of 5 interleaved runs), their PSNR
 /// against the truth the same to 0.002 dB (and hand-held 10 × 3.1 MP's, with 5 % gain and 3 %
-/// white-balance jitter), scripts/bench-quality's within 0.02 dB.
+/// white-balance jitter), benches/bench-quality's within 0.02 dB.
 const SAMPLES: usize = 100_000;
 /// Values at or above this fraction of full scale may be clipped and say nothing about gain.
 const CLIPPED: f32 = 0.98;
@@ -638,10 +638,13 @@ impl<const C: usize> Rows<'_, C> {
                 let mut along = _mm256_setzero_ps();
                 for k in 0..4 {
                     // SAFETY: each slice holds 4·L floats, so lanes k·L..k·L + 4 are in bounds.
-                    let taps = _mm256_set_m128(
-                        _mm_loadu_ps(tb[k * L..].as_ptr()),
-                        _mm_loadu_ps(ta[k * L..].as_ptr()),
-                    );
+                    let (hi, lo) = unsafe {
+                        (
+                            _mm_loadu_ps(tb[k * L..].as_ptr()),
+                            _mm_loadu_ps(ta[k * L..].as_ptr()),
+                        )
+                    };
+                    let taps = _mm256_set_m128(hi, lo);
                     let wx = _mm256_set_m128(_mm_set1_ps(kxb[k]), _mm_set1_ps(kxa[k]));
                     along = _mm256_add_ps(along, _mm256_mul_ps(wx, taps));
                 }
@@ -649,7 +652,8 @@ impl<const C: usize> Rows<'_, C> {
                 acc = _mm256_add_ps(acc, _mm256_mul_ps(wy, along));
             }
             let mut sums = [0.0f32; 2 * L];
-            _mm256_storeu_ps(sums.as_mut_ptr(), acc);
+            // SAFETY: `sums` holds 2·L floats, the register's eight lanes.
+            unsafe { _mm256_storeu_ps(sums.as_mut_ptr(), acc) };
             self.store(&sums[..C], &mut row[x * C..][..C]);
             self.store(&sums[L..L + C], &mut row[(x + 1) * C..][..C]);
             span = (span.0.min(x), x + 2);
