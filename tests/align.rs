@@ -10,7 +10,7 @@ use focusd::stack::register::Placement;
 use focusd::stack::transform::Warp;
 use focusd::stack::NoProgress;
 
-/// A hand-held stack at the limits: shift up to 3% of the width, roll up to 1.5°,
+/// A hand-held stack at the limits focusd is built for: shift up to 3% of the width, roll up to 1.5°,
 /// breathing ±1%, gain ±5%, white balance ±3%, a pixel of parallax.
 fn handheld(seed: u64) -> SimStack {
     render(&SimParams {

@@ -2,22 +2,13 @@
 //! linear light is mosaicked (RGGB, as a sensor records it) and developed.
 //!
 //! Whether raw frames may be developed to 8-bit sRGB one by one and then fused, or must be
-//! fused in linear light and encoded at the end (issue 15 item 4's decision): encoding first
-//! must cost under 1 dB. (Measured 2 December 2026: no difference, 27.06 against 27.07 dB and
-//! 26.38 against 26.35 dB.)
+//! fused in linear light and encoded at the end: encoding first must cost under 1 dB.
 //!
 //! And how much the mosaic costs the fused picture: fusing the developed mosaics against
-//! fusing the simulator's RGB frames, which no mosaic sampled. Issue 15 asks for 1 dB; measured
-//! 3 December 2026 (seeds 5 and 17): 1.16 and 1.20 dB short on the simulator's sharp frames,
-//! 0.79 and 0.88 dB through a 0.5 px lens blur, with the weighted residual interpolation. The
-//! gap moves with the fusion too (1.08-1.34 on seed 5 over that day's fusion changes, the
-//! demosaic unchanged), so the bounds keep some room. (The
-//! plain averages before: 1.43 and 1.48, 0.82 and 1.10; Hamilton-Adams' green before that: 1.81
-//! and 1.89, 1.28 and 1.51; Malvar-He-Cutler before that: about 3 and 2.3). Not met on sharp
-//! frames: the fused error is the fusion's own (the RGB frames' MSE) plus the demosaic's on the
-//! in-focus parts, which comes to what one frame's demosaic measures alone (33.5-34.6 dB sharp,
-//! 37-39 dB blurred, as in the unit tests). Within 1 dB would need the demosaic at about 35.5 dB
-//! on sharp frames.
+//! fusing the simulator's RGB frames, which no mosaic sampled, should cost at most 1 dB. Not met
+//! on sharp frames: the fused error is the fusion's own (the RGB frames' MSE) plus the
+//! demosaic's on the in-focus parts, which comes to what one frame's demosaic measures alone.
+//! The gap moves with the fusion too, the demosaic unchanged, so the bounds keep some room.
 //!
 //! The 1 dB is judged through the 0.5 px blur, and required there: no phone camera records the
 //! simulator's pixel-sharp frames. Diffraction alone at the phones' apertures spreads a point
