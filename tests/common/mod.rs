@@ -1,7 +1,7 @@
 //! What the daemon tests share: a private bus, `focusd serve` on it, a zbus client.
 #![allow(dead_code)] // each test crate uses a part
 
-use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy};
+use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy, FocusdError};
 use focusd::stack::image::Image;
 use futures_util::StreamExt;
 use std::io::{BufRead, BufReader};
@@ -234,10 +234,14 @@ pub async fn connect(bus: &Bus) -> (zbus::Connection, Focusd1Proxy<'static>) {
 }
 
 /// The D-Bus error name and message of a failed call.
-pub fn dbus_error(e: zbus::Error) -> (String, String) {
+pub fn dbus_error(e: FocusdError) -> (String, String) {
+    use zbus::DBusError;
     match e {
-        zbus::Error::MethodError(name, msg, _) => (name.to_string(), msg.unwrap_or_default()),
-        e => panic!("not a method error: {e}"),
+        FocusdError::ZBus(e) => panic!("not a focusd error: {e}"),
+        e => (
+            e.name().to_string(),
+            e.description().unwrap_or_default().into(),
+        ),
     }
 }
 

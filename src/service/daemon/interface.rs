@@ -30,7 +30,16 @@ pub struct Focusd {
     pub(super) shared: Arc<Shared>,
 }
 
-#[interface(name = "org.focusd.Focusd1")]
+/// `proxy` also generates the client side, `Focusd1Proxy` and its signal streams, from these
+/// declarations.
+#[interface(
+    name = "org.focusd.Focusd1",
+    proxy(
+        default_service = "org.focusd.Focusd",
+        default_path = "/org/focusd/Focusd",
+        async_name = "Focusd1Proxy"
+    )
+)]
 impl Focusd {
     /// Starts a capture (sweep, register, fuse) and returns its job id at once; the result
     /// comes as `Finished` or `Failed`.

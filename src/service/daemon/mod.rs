@@ -21,7 +21,7 @@
 //! (the config, the bus name and the main loop).
 
 mod access;
-mod interface;
+pub(super) mod interface;
 mod relay;
 mod startup;
 mod state;
