@@ -15,7 +15,7 @@
 //! (for real stacks, which have no truth).
 
 use anyhow::{bail, Context, Result};
-use focusd::imageio::{load, load_rgb8, Decoded};
+use focusd::files::imageio::{load, load_rgb8, Decoded};
 use focusd::sim::render::Mixing;
 use focusd::stack::ghosts;
 use focusd::stack::image::Image;

@@ -1,6 +1,6 @@
 //! Registration of hand-held stacks against the simulator's true affines.
 
-use focusd::imageio::{load, Decoded};
+use focusd::files::imageio::{load, Decoded};
 use focusd::sim::render::{render_scene, true_positions};
 use focusd::sim::scene::Scene;
 use focusd::sim::{render, SimParams};

@@ -2,8 +2,8 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
-use focusd::imageio::{self as io, Decoded, Header};
-use focusd::outputs::Outputs;
+use focusd::files::imageio::{self as io, Decoded, Header};
+use focusd::files::outputs::Outputs;
 use focusd::service::fuse_settings::FuseSettings;
 use focusd::stack::fuse::{fuse, Alignment, FuseError};
 use focusd::stack::image::{Image, Sample};

@@ -7,8 +7,8 @@
 
 use anyhow::{bail, Context, Result};
 use focusd::backend::replay::BundleWriter;
-use focusd::imageio::{encode, save};
-use focusd::outputs::write_atomic;
+use focusd::files::imageio::{encode, save};
+use focusd::files::outputs::write_atomic;
 use focusd::sim::bundle::{self, Shake};
 use focusd::sim::{self, FrameInfo, SimParams};
 use focusd::stack::image::Image;
@@ -422,7 +422,7 @@ const SHAKE_SMEAR_PX: usize = 9;
 mod tests {
     use super::*;
     use clap::Parser;
-    use focusd::imageio::{load, Decoded};
+    use focusd::files::imageio::{load, Decoded};
 
     #[derive(Parser)]
     struct Cli {

@@ -11,7 +11,7 @@ use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
 use crate::capture::{Camera, CaptureError, Clock, Imu, Take};
-use crate::outputs::Outputs;
+use crate::files::outputs::Outputs;
 use crate::stack::fuse::{fuse, FuseError};
 use crate::stack::memory::{mib, Plan};
 use crate::stack::Progress;
@@ -158,7 +158,7 @@ pub fn run(
     monitor: &dyn Monitor,
     progress: &dyn Progress,
 ) -> Result<Report> {
-    let format = crate::imageio::format_for(output)?;
+    let format = crate::files::imageio::format_for(output)?;
     let mut outs = Outputs::check(
         &[Some(output), report]
             .into_iter()
@@ -194,7 +194,7 @@ pub fn run(
         return Err(FuseError::Cancelled.into());
     }
     let t = Instant::now();
-    let bytes = crate::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
+    let bytes = crate::files::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
     outs.write(output, &bytes)?;
     let mut timings = BTreeMap::from([("capture", capture_ms)]);
     for (stage, d) in &fused.timings {

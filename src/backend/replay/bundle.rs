@@ -4,7 +4,7 @@
 //! come from another machine.
 
 use crate::capture::{ImuSample, Nanos, Sensor};
-use crate::outputs::write_atomic;
+use crate::files::outputs::write_atomic;
 use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -74,9 +74,9 @@ impl Bundle {
             .canonicalize()
             .map_err(|e| err(dir, format!("cannot open the bundle: {e}")))?;
         let toml_path = dir.join("bundle.toml");
-        let text = crate::bounded_read::read_to_string(
+        let text = crate::files::bounded_read::read_to_string(
             &inside(&root, &toml_path)?,
-            crate::bounded_read::TEXT_CAP,
+            crate::files::bounded_read::TEXT_CAP,
         )
         .map_err(|e| err(&toml_path, format!("cannot read: {e}")))?;
         let manifest = parse_manifest(&text).map_err(|r| err(&toml_path, r))?;
@@ -206,7 +206,7 @@ fn inside(root: &Path, path: &Path) -> Result<PathBuf, BundleError> {
 }
 
 fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
-    use crate::bounded_read::{check_cap, open_capped};
+    use crate::files::bounded_read::{check_cap, open_capped};
     let cannot = |e: std::io::Error| err(path, format!("cannot read: {e}"));
     let mut r = std::io::BufReader::new(open_capped(path, MAX_CSV_BYTES).map_err(cannot)?);
     let samples = parse_imu(&mut r).map_err(|r| err(path, r))?;

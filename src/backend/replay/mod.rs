@@ -131,7 +131,8 @@ impl Camera for ReplayCamera {
             .bundle
             .file(&entry.image)
             .map_err(|e| bundle_error(e.to_string()))?;
-        let image = crate::imageio::load_rgb8(&path).map_err(|e| bundle_error(format!("{e:#}")))?;
+        let image =
+            crate::files::imageio::load_rgb8(&path).map_err(|e| bundle_error(format!("{e:#}")))?;
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
             image,

@@ -216,7 +216,7 @@ pub(super) fn reload(path: &Option<PathBuf>, bus: &Bus, shared: &Shared) {
         }
         Err(e) => tracing::error!(
             "SIGHUP: {}; keeping the old config",
-            crate::clip::clip(&format!("{e:#}"))
+            crate::base::clip::clip(&format!("{e:#}"))
         ),
     }
 }

@@ -83,7 +83,7 @@ impl Reporter {
         if began {
             // A stage has begun: what the last one freed goes back to the system (as the CLI's
             // bar does), once per stage and not on every per-plane report.
-            crate::malloc::release_freed_memory();
+            crate::base::malloc::release_freed_memory();
         }
     }
 
@@ -209,7 +209,7 @@ pub(super) fn worker(
                     let error = if job::is_cancel(&e) {
                         "cancelled".to_string()
                     } else {
-                        crate::clip::clip(&format!("{e:#}"))
+                        crate::base::clip::clip(&format!("{e:#}"))
                     };
                     tracing::warn!(job = %r.id, %error, "failed");
                     Event::Failed { job: r.id, error }

@@ -1,7 +1,7 @@
 //! Image files in and out: decoding with limits and EXIF orientation, encoding by extension,
 //! atomic writes.
 
-use crate::bounded_read;
+use crate::files::bounded_read;
 use crate::stack::image::{Image, Sample};
 use anyhow::{anyhow, bail, Context, Result};
 use image::metadata::Orientation;
@@ -431,7 +431,7 @@ fn jpeg<T: Sample>(img: &Image<T>, quality: u8) -> Result<Vec<u8>> {
 /// Encodes by `path`'s extension and writes atomically.
 pub fn save<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
     let bytes = encode(img, format_for(path)?, quality)?;
-    crate::outputs::write_atomic(path, &bytes)
+    crate::files::outputs::write_atomic(path, &bytes)
 }
 
 #[cfg(test)]
