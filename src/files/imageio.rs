@@ -1,5 +1,5 @@
-//! Image files in and out: decoding with limits and EXIF orientation, encoding by extension,
-//! atomic writes.
+//! Image files in and out: decoding with limits and EXIF orientation, encoding by extension
+//! (`outputs` writes the bytes).
 
 use crate::files::bounded_read;
 use crate::stack::image::{Image, Sample};
@@ -426,12 +426,6 @@ fn jpeg<T: Sample>(img: &Image<T>, quality: u8) -> Result<Vec<u8>> {
     enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_4_4);
     enc.encode(&img.convert::<u8>().data, w, h, colour)?;
     Ok(out)
-}
-
-/// Encodes by `path`'s extension and writes atomically.
-pub fn save<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
-    let bytes = encode(img, format_for(path)?, quality)?;
-    crate::files::outputs::write_atomic(path, &bytes)
 }
 
 #[cfg(test)]

@@ -1,5 +1,6 @@
 //! Writing output files so that nothing partial is ever left under a final name, and a
-//! command's outputs land all together or not at all.
+//! command's outputs land all together or not at all. Every file focusd writes goes through
+//! here: images, depth maps, reports, transforms and replay bundles.
 //!
 //! `fuse` writes an image and perhaps a depth map and transforms; `capture` an image and perhaps
 //! a report. A user who finds one of them trusts the others, and a bad output path should not be
@@ -8,6 +9,8 @@
 //! directory writable, whoever runs it), the work writes into those, and [`Outputs::commit`]
 //! renames them all at the end; on any failure before that, dropping the set removes them.
 
+use super::imageio;
+use crate::stack::image::{Image, Sample};
 use anyhow::{anyhow, bail, Result};
 use std::ffi::OsStr;
 use std::fs::{self, File, OpenOptions};
@@ -65,6 +68,20 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let mut set = Outputs::check(&[path], &[])?;
     set.write(path, bytes)?;
     set.commit()
+}
+
+/// Encodes `img` by `path`'s extension and writes it atomically.
+pub fn save_image<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
+    let bytes = imageio::encode(img, imageio::format_for(path)?, quality)?;
+    write_atomic(path, &bytes)
+}
+
+/// Removes `path`'s temporary file, if any: what a job abandoned without dropping its
+/// [`Outputs`] (a thread blocked for good) leaves behind.
+pub fn discard_temp(path: &Path) {
+    if let Ok(tmp) = temp_path(path) {
+        let _ = fs::remove_file(tmp);
+    }
 }
 
 struct Staged {

@@ -5,7 +5,7 @@ pub mod daemon;
 pub mod feedback;
 pub mod fuse_settings;
 pub mod job;
-pub mod output;
+pub mod output_dir;
 pub mod pictures;
 pub mod proxy;
 pub mod watchdog;

@@ -7,7 +7,7 @@ use super::worker::{state_of, Request};
 use crate::backend::input::{EvdevKeys, TriggerConfig};
 use crate::capture::trigger::{self, Gesture};
 use crate::capture::Stage;
-use crate::service::output;
+use crate::service::output_dir;
 use anyhow::{Context, Result};
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
@@ -35,8 +35,8 @@ pub(super) fn start(shared: &Shared, owner: Owner) -> Result<String, FocusdError
     let Some(requests) = s.requests.clone() else {
         return Err(FocusdError::Busy("the service is shutting down".into()));
     };
-    let (image, report) =
-        output::next_paths(&s.config.output).map_err(|e| FocusdError::Output(format!("{e:#}")))?;
+    let (image, report) = output_dir::next_paths(&s.config.output)
+        .map_err(|e| FocusdError::Output(format!("{e:#}")))?;
     let id = new_job_id().map_err(|e| FocusdError::Busy(format!("no job id: {e}")))?;
     let cancel = Arc::new(AtomicBool::new(false));
     let report = s.config.output.report.then_some(report);

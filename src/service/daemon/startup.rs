@@ -11,7 +11,7 @@ use crate::service::config::Config;
 use crate::service::feedback::Desk;
 use crate::service::job::Source;
 use crate::service::watchdog::Heartbeat;
-use crate::service::{output, pictures};
+use crate::service::{output_dir, pictures};
 use anyhow::{Context, Result};
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
@@ -41,7 +41,7 @@ pub(super) fn load(path: &Option<PathBuf>, bus: &Bus) -> Result<Config> {
             ),
         }
     }
-    output::prepare(&config.output)?;
+    output_dir::prepare(&config.output)?;
     Ok(config)
 }
 

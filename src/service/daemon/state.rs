@@ -119,9 +119,7 @@ pub(super) fn give_up_if_stalled(shared: &Shared) -> Option<(String, String)> {
         r.id
     ))]);
     for path in &r.outputs {
-        if let Ok(tmp) = crate::files::outputs::temp_path(path) {
-            let _ = std::fs::remove_file(tmp);
-        }
+        crate::files::outputs::discard_temp(path);
     }
     Some((r.id, error))
 }

@@ -1,5 +1,6 @@
 //! The output directory: the only place the daemon writes images, under names it makes
-//! itself from the capture time, so no caller can steer a write anywhere else.
+//! itself from the capture time, so no caller can steer a write anywhere else. The writing
+//! itself is `files::outputs`'s.
 
 use super::config::OutputConfig;
 use anyhow::{Context, Result};
