@@ -58,7 +58,7 @@ fn sim(dir: &Path, images: &[PathBuf]) -> Result<()> {
         .frames
         .iter()
         .map(|f| load_rgb8(&dir.join(&f.file)))
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, _>>()?;
     let n = frames.len();
     let truth = load_rgb8(&dir.join("truth.png"))?;
     let labels: Vec<u8> = load_gray(&dir.join("depth.png"))?
@@ -149,7 +149,7 @@ fn run() -> Result<()> {
             let frames = args[2..]
                 .iter()
                 .map(|p| load_rgb8(p))
-                .collect::<Result<Vec<_>>>()?;
+                .collect::<Result<Vec<_>, _>>()?;
             println!("{}: {}", args[1].display(), ghost_line(&img, &frames));
             Ok(())
         }

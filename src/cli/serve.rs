@@ -82,7 +82,8 @@ pub fn serve(a: &ServeArgs) -> Result<()> {
         paced: a.paced,
         faults: a.fault.clone(),
         bus: a.bus.bus(),
-    })
+    })?;
+    Ok(())
 }
 
 #[derive(clap::Args, Debug)]

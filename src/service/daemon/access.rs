@@ -5,10 +5,11 @@ use super::interface::FocusdError;
 use super::state::{Running, Shared};
 use super::worker::{state_of, Request};
 use crate::backend::input::{EvdevKeys, TriggerConfig};
+use crate::base::clip;
 use crate::capture::trigger::{self, Gesture};
 use crate::capture::Stage;
 use crate::service::output_dir;
-use anyhow::{Context, Result};
+use crate::service::ServiceError;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
@@ -36,7 +37,7 @@ pub(super) fn start(shared: &Shared, owner: Owner) -> Result<String, FocusdError
         return Err(FocusdError::Busy("the service is shutting down".into()));
     };
     let (image, report) = output_dir::next_paths(&s.config.output)
-        .map_err(|e| FocusdError::Output(format!("{e:#}")))?;
+        .map_err(|e| FocusdError::Output(clip::chain(&e)))?;
     let id = new_job_id().map_err(|e| FocusdError::Busy(format!("no job id: {e}")))?;
     let cancel = Arc::new(AtomicBool::new(false));
     let report = s.config.output.report.then_some(report);
@@ -115,7 +116,9 @@ pub(super) fn on_gesture(shared: &Shared, gesture: Gesture) {
 
 /// Runs the trigger keys on their own thread (they block in poll), sending each gesture to
 /// the main loop, until the loop is gone.
-pub(super) fn watch_keys(config: &TriggerConfig) -> Result<UnboundedReceiver<Gesture>> {
+pub(super) fn watch_keys(
+    config: &TriggerConfig,
+) -> Result<UnboundedReceiver<Gesture>, ServiceError> {
     let (tx, rx) = unbounded_channel();
     if config.keys.is_empty() {
         tracing::info!("trigger keys: none configured ([trigger] keys = [])");
@@ -128,7 +131,7 @@ pub(super) fn watch_keys(config: &TriggerConfig) -> Result<UnboundedReceiver<Ges
             let mut keys = EvdevKeys::open(&config);
             trigger::watch(&mut keys, config.long_press(), |g| tx.send(g).is_ok());
         })
-        .context("starting the trigger key thread")?;
+        .map_err(|e| ServiceError::Start("trigger key thread", e))?;
     Ok(rx)
 }
 

@@ -30,8 +30,8 @@ mod worker;
 pub use interface::{Focusd, FocusdError};
 pub use startup::serve;
 
+use super::ServiceError;
 use crate::backend::replay::faults::Fault;
-use anyhow::{Context, Result};
 use std::path::PathBuf;
 
 pub const BUS_NAME: &str = "org.focusd.Focusd";
@@ -48,14 +48,17 @@ pub enum Bus {
 
 impl Bus {
     /// Errors of a reachable bus surface when the connection is built.
-    pub fn builder(&self) -> Result<zbus::connection::Builder<'static>> {
+    pub fn builder(&self) -> Result<zbus::connection::Builder<'static>, ServiceError> {
         Ok(match self {
             Bus::Session => zbus::connection::Builder::session(),
             Bus::System => zbus::connection::Builder::system(),
             Bus::Address(a) => {
-                let address = a
-                    .parse::<zbus::Address>()
-                    .with_context(|| format!("--address {a:?} is not a D-Bus address"))?;
+                let address =
+                    a.parse::<zbus::Address>()
+                        .map_err(|error| ServiceError::Address {
+                            address: a.clone(),
+                            error,
+                        })?;
                 zbus::connection::Builder::address(address)
             }
         })

@@ -7,18 +7,21 @@ use super::relay::relay;
 use super::state::{give_up_if_stalled, stop, Shared, State};
 use super::worker::{worker, Event};
 use super::{Bus, ServeOptions, BUS_NAME, OBJECT_PATH};
+use crate::base::clip;
 use crate::service::config::Config;
 use crate::service::feedback::Desk;
 use crate::service::job::Source;
 use crate::service::watchdog::Heartbeat;
+use crate::service::ServiceError;
 use crate::service::{output_dir, pictures};
-use anyhow::{Context, Result};
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::signal::unix::{signal, SignalKind};
 use tokio::sync::mpsc::unbounded_channel;
+
+type Result<T> = std::result::Result<T, ServiceError>;
 
 /// The config (built-in defaults without a file), with its output directory chosen and ready.
 pub(super) fn load(path: &Option<PathBuf>, bus: &Bus) -> Result<Config> {
@@ -60,7 +63,7 @@ pub fn serve(opts: ServeOptions) -> Result<()> {
         .worker_threads(1)
         .enable_all()
         .build()
-        .context("starting the async runtime")?;
+        .map_err(|e| ServiceError::Start("async runtime", e))?;
     let result = runtime.block_on(run(opts, config, source));
     // A job blocked in a read keeps its thread: nothing waits for it.
     runtime.shutdown_background();
@@ -91,7 +94,10 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
         .serve_at(OBJECT_PATH, service)
         .build()
         .await
-        .with_context(|| format!("cannot connect to the {:?} bus", opts.bus))?;
+        .map_err(|error| ServiceError::Connect {
+            bus: opts.bus.clone(),
+            error,
+        })?;
     let mut lost = own_name(&conn, &opts.bus).await?;
     let iface = conn
         .object_server()
@@ -102,7 +108,7 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
         std::thread::Builder::new()
             .name("focusd-job".into())
             .spawn(move || worker(shared, inbox, events))
-            .context("starting the job thread")?
+            .map_err(|e| ServiceError::Start("job thread", e))?
     };
     let mut gestures = watch_keys(&shared.lock().config.trigger)?;
     let desk = Desk::new((opts.bus != Bus::System).then(|| conn.clone()));
@@ -124,19 +130,19 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut stopping = false;
     // Why the service ends with an error once its job has stopped: the bus is gone.
-    let mut fatal: Option<anyhow::Error> = None;
+    let mut fatal: Option<ServiceError> = None;
     loop {
         tokio::select! {
             _ = term.recv() => stopping = stop(&shared),
             _ = int.recv() => stopping = stop(&shared),
             Some(_) = lost.next(), if fatal.is_none() => {
-                let e = anyhow::anyhow!("lost the bus name {BUS_NAME}; exiting for systemd to restart the service");
+                let e = ServiceError::NameLost(BUS_NAME);
                 tracing::error!("{e}");
                 fatal = Some(e);
                 stopping = stop(&shared);
             }
             _ = conn.closed(), if fatal.is_none() => {
-                let e = anyhow::anyhow!("the connection to the {:?} bus closed; exiting for systemd to restart the service", opts.bus);
+                let e = ServiceError::BusClosed(opts.bus.clone());
                 tracing::error!("{e}");
                 fatal = Some(e);
                 stopping = stop(&shared);
@@ -146,7 +152,7 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
             _ = tick.tick() => {
                 if let Some((job, error)) = give_up_if_stalled(&shared) {
                     let _ = Focusd::failed(iface.signal_emitter(), &job, &error).await;
-                    return Err(anyhow::anyhow!("job {job}: {error}"));
+                    return Err(ServiceError::Stalled { job, error });
                 }
                 if let Some(period) = watchdog {
                     if pinged.is_none_or(|t| t.elapsed() >= period / 2) {
@@ -160,9 +166,7 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
             }
         }
     }
-    worker
-        .join()
-        .map_err(|_| anyhow::anyhow!("the job thread panicked"))?;
+    worker.join().map_err(|_| ServiceError::WorkerPanicked)?;
     // The worker's last events (a cancelled job's Failed) go out before the service ends.
     relay.await?;
     fatal.map_or(Ok(()), Err)
@@ -177,11 +181,9 @@ pub(super) async fn own_name(
     use zbus::fdo::{RequestNameFlags, RequestNameReply};
     let dbus = zbus::fdo::DBusProxy::new(conn).await?;
     let lost = dbus.receive_name_lost_with_args(&[(0, BUS_NAME)]).await?;
-    let taken = || {
-        anyhow::anyhow!(
-            "{BUS_NAME} is already owned on the {bus:?} bus: another focusd serve is running \
-             (stop it first; focusd does not take the name over)"
-        )
+    let taken = || ServiceError::NameTaken {
+        name: BUS_NAME,
+        bus: bus.clone(),
     };
     match conn
         .request_name_with_flags(BUS_NAME, RequestNameFlags::DO_NOT_QUEUE)
@@ -189,11 +191,10 @@ pub(super) async fn own_name(
     {
         Ok(RequestNameReply::PrimaryOwner) => Ok(lost),
         Ok(_) | Err(zbus::Error::NameTaken) => Err(taken()),
-        Err(e) => Err(e).with_context(|| {
-            format!(
-                "cannot own {BUS_NAME} on the {bus:?} bus (does the D-Bus policy let this user own \
-                 it? see systemd/org.focusd.Focusd.conf)"
-            )
+        Err(error) => Err(ServiceError::CannotOwn {
+            name: BUS_NAME,
+            bus: bus.clone(),
+            error,
         }),
     }
 }
@@ -216,7 +217,7 @@ pub(super) fn reload(path: &Option<PathBuf>, bus: &Bus, shared: &Shared) {
         }
         Err(e) => tracing::error!(
             "SIGHUP: {}; keeping the old config",
-            crate::base::clip::clip(&format!("{e:#}"))
+            clip::clip(&clip::chain(&e))
         ),
     }
 }

@@ -3,10 +3,12 @@
 
 use super::state::Shared;
 use crate::backend::replay::faults::Fault;
+use crate::base::clip;
 use crate::capture::sweep::Monitor;
 use crate::capture::Stage;
 use crate::service::config::Config;
 use crate::service::job::{self, Rig, Source};
+use crate::service::ServiceError;
 use crate::stack::Progress;
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
@@ -183,9 +185,7 @@ pub(super) fn worker(
                 .map(|s| s.to_string())
                 .or_else(|| panic.downcast_ref::<String>().cloned())
                 .unwrap_or_default();
-            Err(anyhow::anyhow!(
-                "internal error: {what} (please report this)"
-            ))
+            Err(ServiceError::Panicked(what))
         });
         // Idle before the signal, so a client may start the next job as soon as it hears.
         let event = {
@@ -206,10 +206,10 @@ pub(super) fn worker(
                     }
                 }
                 Err(e) => {
-                    let error = if job::is_cancel(&e) {
+                    let error = if e.is_cancel() {
                         "cancelled".to_string()
                     } else {
-                        crate::base::clip::clip(&format!("{e:#}"))
+                        clip::clip(&clip::chain(&e))
                     };
                     tracing::warn!(job = %r.id, %error, "failed");
                     Event::Failed { job: r.id, error }
