@@ -6,7 +6,8 @@
 //! `focusd fuse` does the same with every option.
 
 use anyhow::{bail, Result};
-use focusd::imageio::{load_rgb8, save};
+use focusd::files::imageio::load_rgb8;
+use focusd::files::outputs::save_image;
 use focusd::stack::fuse::fuse;
 use focusd::stack::params::{middle_frame, FuseParams};
 use focusd::stack::NoProgress;
@@ -20,13 +21,13 @@ fn main() -> Result<()> {
     let frames = paths
         .iter()
         .map(|p| load_rgb8(p))
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, _>>()?;
     let params = FuseParams {
         reference: middle_frame(frames.len()),
         ..FuseParams::default()
     };
     let fused = fuse(frames, &params, &NoProgress)?;
-    save(&fused.image, out, 92)?;
+    save_image(&fused.image, out, 92)?;
     println!("{} frames fused into {}", paths.len(), out.display());
     Ok(())
 }

@@ -4,7 +4,7 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[global_allocator]
-static ALLOCATOR: focusd::malloc::HugePages = focusd::malloc::HugePages;
+static ALLOCATOR: focusd::base::malloc::HugePages = focusd::base::malloc::HugePages;
 
 /// Hand-held focus stacking for Linux phones.
 #[derive(Parser, Debug)]
@@ -33,7 +33,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    focusd::malloc::tune();
+    focusd::base::malloc::tune();
     let args = Args::parse();
     let result = match &args.command {
         Command::Capture(a) => cli::capture::run(a),
@@ -47,7 +47,10 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("focusd: error: {}", focusd::clip::clip(&format!("{e:#}")));
+            eprintln!(
+                "focusd: error: {}",
+                focusd::base::clip::clip(&format!("{e:#}"))
+            );
             ExitCode::FAILURE
         }
     }

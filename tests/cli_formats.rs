@@ -282,9 +282,9 @@ fn cmyk_jpeg_is_read_as_rgb_and_fuses() {
             p
         })
         .collect();
-    let img = match focusd::imageio::load(&frames[0]).unwrap() {
-        focusd::imageio::Decoded::U8(i) => i,
-        focusd::imageio::Decoded::U16(_) => panic!("8-bit expected"),
+    let img = match focusd::files::imageio::load(&frames[0]).unwrap() {
+        focusd::files::imageio::Decoded::U8(i) => i,
+        focusd::files::imageio::Decoded::U16(_) => panic!("8-bit expected"),
     };
     assert_eq!((img.width, img.height, img.channels), (48, 32, 3));
     for (bx, by) in [(0, 0), (5, 0), (2, 3)] {

@@ -1,6 +1,6 @@
 //! Fusion quality against ground truth on the committed aligned synthetic stacks.
 
-use focusd::imageio::{load, Decoded};
+use focusd::files::imageio::{load, Decoded};
 use focusd::stack::focus::{focus_amplitude, FocusParams, AMP_SCALE};
 use focusd::stack::fuse::fuse;
 use focusd::stack::image::Image;

@@ -1,6 +1,6 @@
 //! Registration of hand-held stacks against the simulator's true affines.
 
-use focusd::imageio::{load, Decoded};
+use focusd::files::imageio::{load, Decoded};
 use focusd::sim::{render, SimParams};
 use focusd::stack::fuse::fuse;
 use focusd::stack::image::Plane;

@@ -18,8 +18,8 @@
 use anyhow::{bail, Context, Result};
 use focusd::develop::demosaic::demosaic;
 use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
-use focusd::imageio::load_rgb8;
-use focusd::sim::develop::grey_edge;
+use focusd::files::imageio::load_rgb8;
+use focusd::sim::demosaic_scenes::grey_edge;
 use focusd::sim::{render, SimParams};
 use focusd::stack::blur::gaussian_blur_channels;
 use focusd::stack::fuse::fuse;
@@ -288,7 +288,7 @@ fn main() -> Result<()> {
         match a.as_str() {
             "--real" => real_dirs.push(PathBuf::from(args.next().context("--real DIR")?)),
             "--no-fuse" => fuse_too = false,
-            "--tune" => focusd::malloc::tune(),
+            "--tune" => focusd::base::malloc::tune(),
             "--runs" => runs = args.next().context("--runs N")?.parse()?,
             _ => bail!("usage: demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N]"),
         }

@@ -13,7 +13,8 @@
 //! DIR/frame_NN.png. `compare` takes the same options for the stack it generates.
 
 use anyhow::{bail, Context, Result};
-use focusd::imageio::{load_rgb8, save};
+use focusd::files::imageio::load_rgb8;
+use focusd::files::outputs::save_image as save;
 use focusd::sim::flats::{flats, FlatsParams};
 use focusd::stack::align::Coverage;
 use focusd::stack::fuse::{fuse, warp_onto_reference, Fused};

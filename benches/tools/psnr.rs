@@ -20,7 +20,7 @@
 //! from the truth's is reported on stderr and skipped; the exit status is then 1.
 
 use anyhow::{bail, Context, Result};
-use focusd::imageio::load_rgb8;
+use focusd::files::imageio::load_rgb8;
 use focusd::stack::metrics::{psnr, tenengrad};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

@@ -16,7 +16,7 @@
 //! (for real stacks, which have no truth).
 
 use anyhow::{bail, Context, Result};
-use focusd::imageio::{load, load_rgb8, Decoded};
+use focusd::files::imageio::{load, load_rgb8, Decoded};
 use focusd::sim::render::Mixing;
 use focusd::stack::ghosts;
 use focusd::stack::image::Image;
@@ -59,7 +59,7 @@ fn sim(dir: &Path, images: &[PathBuf]) -> Result<()> {
         .frames
         .iter()
         .map(|f| load_rgb8(&dir.join(&f.file)))
-        .collect::<Result<Vec<_>>>()?;
+        .collect::<Result<Vec<_>, _>>()?;
     let n = frames.len();
     let truth = load_rgb8(&dir.join("truth.png"))?;
     let labels: Vec<u8> = load_gray(&dir.join("depth.png"))?
@@ -150,7 +150,7 @@ fn run() -> Result<()> {
             let frames = args[2..]
                 .iter()
                 .map(|p| load_rgb8(p))
-                .collect::<Result<Vec<_>>>()?;
+                .collect::<Result<Vec<_>, _>>()?;
             println!("{}: {}", args[1].display(), ghost_line(&img, &frames));
             Ok(())
         }

@@ -3,7 +3,7 @@
 //! declares (pixels, the conversions' copies and 16 MiB of ancillary data).
 #![no_main]
 
-use focusd::imageio::{load, probe};
+use focusd::files::imageio::{load, probe};
 use libfuzzer_sys::fuzz_target;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};

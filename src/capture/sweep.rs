@@ -3,7 +3,7 @@
 
 use super::gate::{measure, Motion, Rest, Thresholds};
 use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Stage, Take};
-use crate::setting::{Bounds, Invalid};
+use crate::base::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 
 /// What to do when every take of a plane was shaken.

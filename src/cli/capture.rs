@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use focusd::backend::replay::BundleWriter;
 use focusd::capture::record::Recording;
 use focusd::capture::sweep::{sweep, PlaneReport, Unmonitored};
-use focusd::imageio as io;
+use focusd::files::imageio as io;
 use focusd::service::config::Config;
 use focusd::service::fuse_settings::QUALITY;
 use focusd::service::job::{self, Rig, Source};

@@ -2,8 +2,9 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
-use focusd::imageio::{self as io, Decoded, Header};
-use focusd::outputs::Outputs;
+use focusd::files::imageio::{self as io, Decoded, Header};
+use focusd::files::outputs::Outputs;
+use focusd::files::FileError;
 use focusd::service::fuse_settings::FuseSettings;
 use focusd::stack::fuse::{fuse, Alignment, FuseError};
 use focusd::stack::image::{Image, Sample};
@@ -100,7 +101,7 @@ pub fn run(a: &FuseArgs) -> Result<()> {
         .frames
         .par_iter()
         .map(|p| io::load(p))
-        .collect::<Result<_>>()?;
+        .collect::<Result<_, FileError>>()?;
     let load_time = t0.elapsed();
     let sixteen = decoded.iter().any(|d| matches!(d, Decoded::U16(_)));
     if sixteen {
@@ -130,7 +131,7 @@ fn check_memory(a: &FuseArgs) -> Result<()> {
         .frames
         .iter()
         .map(|p| io::probe(p))
-        .collect::<Result<_>>()?;
+        .collect::<Result<_, FileError>>()?;
     let (w, h) = (headers[0].width, headers[0].height);
     for (d, p) in headers.iter().zip(&a.frames).skip(1) {
         if (d.width, d.height) != (w, h) {

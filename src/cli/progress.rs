@@ -36,7 +36,7 @@ impl Bar {
 
 impl Progress for Bar {
     fn stage(&self, stage: Stage, total: usize) {
-        focusd::malloc::release_freed_memory();
+        focusd::base::malloc::release_freed_memory();
         self.0.set_message(stage.name());
         self.0.set_length(total as u64);
         self.0.set_position(0);

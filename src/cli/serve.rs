@@ -3,7 +3,9 @@
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
 use focusd::service::daemon::{self, Bus, ServeOptions, BUS_NAME, OBJECT_PATH};
-use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy, ProgressStream};
+use focusd::service::proxy::{
+    FailedStream, FinishedStream, Focusd1Proxy, FocusdError, ProgressStream,
+};
 use futures_util::StreamExt;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -80,7 +82,8 @@ pub fn serve(a: &ServeArgs) -> Result<()> {
         paced: a.paced,
         faults: a.fault.clone(),
         bus: a.bus.bus(),
-    })
+    })?;
+    Ok(())
 }
 
 #[derive(clap::Args, Debug)]
@@ -120,11 +123,17 @@ async fn trigger_async(a: &TriggerArgs) -> Result<()> {
         proxy.receive_failed().await?,
     );
     let job = proxy.capture().await.map_err(|e| match e {
-        zbus::Error::MethodError(name, Some(msg), _) => anyhow::anyhow!("{name}: {msg}"),
-        zbus::Error::MethodError(name, None, _) if name.as_str().ends_with("ServiceUnknown") => {
+        FocusdError::ZBus(zbus::Error::MethodError(name, Some(msg), _)) => {
+            anyhow::anyhow!("{name}: {msg}")
+        }
+        FocusdError::ZBus(zbus::Error::MethodError(name, None, _))
+            if name.as_str().ends_with("ServiceUnknown") =>
+        {
             anyhow::anyhow!("{BUS_NAME} is not running on the {bus:?} bus (start `focusd serve`)")
         }
-        e => anyhow::anyhow!("Capture: {e}"),
+        FocusdError::ZBus(e) => anyhow::anyhow!("Capture: {e}"),
+        // The service's own errors, decoded: they print as `org.focusd.Error.NAME: message`.
+        e => anyhow::anyhow!("{e}"),
     })?;
     if !a.wait {
         println!("{job}");

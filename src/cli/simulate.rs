@@ -7,8 +7,8 @@
 
 use anyhow::{bail, Context, Result};
 use focusd::backend::replay::BundleWriter;
-use focusd::imageio::{encode, save};
-use focusd::outputs::write_atomic;
+use focusd::files::imageio::encode;
+use focusd::files::outputs::{save_image, write_atomic};
 use focusd::sim::bundle::{self, Shake};
 use focusd::sim::{self, FrameInfo, SimParams};
 use focusd::stack::image::Image;
@@ -261,9 +261,9 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let quality = args.quality as u8;
     let names: Vec<String> = (0..p.planes).map(frame_name).collect();
     for (frame, name) in stack.frames.iter().zip(&names) {
-        save(frame, &dir.join(name), quality)?;
+        save_image(frame, &dir.join(name), quality)?;
     }
-    save(&stack.truth, &dir.join("truth.png"), quality)?;
+    save_image(&stack.truth, &dir.join("truth.png"), quality)?;
     let scale = 255.0 / (p.planes - 1) as f32;
     let depth_png = Image::<u8>::from_vec(
         p.width,
@@ -276,8 +276,8 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             .map(|&i| (i as f32 * scale).round() as u8)
             .collect(),
     );
-    save(&depth_png, &dir.join("depth.png"), quality)?;
-    save(&stack.steps, &dir.join("steps.png"), quality)?;
+    save_image(&depth_png, &dir.join("depth.png"), quality)?;
+    save_image(&stack.steps, &dir.join("steps.png"), quality)?;
     if args.motion {
         for i in 0..p.planes {
             let a = stack.ref_to_frame[i];
@@ -291,7 +291,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                     _ => 0,
                 }
             });
-            save(&img, &dir.join(motion_name(i)), quality)?;
+            save_image(&img, &dir.join(motion_name(i)), quality)?;
         }
     }
 
@@ -422,7 +422,7 @@ const SHAKE_SMEAR_PX: usize = 9;
 mod tests {
     use super::*;
     use clap::Parser;
-    use focusd::imageio::{load, Decoded};
+    use focusd::files::imageio::{load, Decoded};
 
     #[derive(Parser)]
     struct Cli {

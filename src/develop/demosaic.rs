@@ -3,8 +3,8 @@
 //! Done on sRGB-encoded samples, not in linear light: shading and shadows scale all three
 //! colours together, which in linear light changes their differences in proportion but in an
 //! encoded signal hardly at all, and the filters below assume smooth colour differences. On the
-//! simulator's scenes this alone is worth about 3.5 dB for the same filters (measured by the
-//! tests, which print the figures).
+//! simulator's scenes this alone is worth several dB for the same filters (the tests print
+//! the figures).
 //!
 //! Minimised-Laplacian residual interpolation (Kiku, Monno, Tanaka and Okutomi, "Residual
 //! interpolation for color image demosaicking", ICIP 2013, and "Minimized-Laplacian residual
@@ -23,22 +23,10 @@
 //! interpolation: Kiku, Monno, Tanaka and Okutomi, "Beyond color difference", IEEE TIP 2016;
 //! see [`residual_fill`]), so that windows straddling an edge count little.
 //!
-//! Measured on the simulator's scenes (the tests print the figures; `benches/tools/demosaic.rs`
-//! gives them all): 3-4 dB above Malvar, He and Cutler's linear filters, which focusd used
-//! first and which the tests keep as the baseline. The directional green is worth 1.0-1.4 dB
-//! over Hamilton and Adams' single-direction choice, which this used before (33.6 against 32.3
-//! dB on sharp scenes, 37.3 against 36.2 through a 0.5 px blur), and takes 45° grey edges'
-//! false colour from 53 to 44 (sharp) and 30 to 9 (soft) in 8-bit units; the real stacks'
-//! frames (phone JPEGs, mosaicked) gain 0.0-1.0 dB, none loses. Without the refit of green the
-//! directional green alone is 1.8 dB worse; a second round of refitting, or a per-pixel choice
-//! between the least-squares and the minimised-Laplacian slope (as adaptive residual
-//! interpolation, Monno et al. 2015, chooses), moved the simulator's figures by under 0.1 dB or
-//! lost 0.3 dB through the blur. The weighted averages (with 7×7 windows rather than 5×5)
-//! added 0.5 dB on sharp scenes (34.1 dB), 0.9 dB through the blur (38.3 dB) and 0.2-0.3 dB
-//! on every real stack, and took 45° false colour to 40 (sharp) and 8 (soft), for 1.5 times
-//! the time (1.3 s of CPU per 3 MP frame on one thread of a loaded machine, against 0.8-0.9 s
-//! in the same runs); with the weights a second round of refitting still gained only 0.3 dB sharp and
-//! lost up to 0.2 dB on real frames.
+//! The tests measure it against Malvar, He and Cutler's linear filters (the baseline, which it
+//! beats by several dB on the simulator's scenes) and print the figures; `benches/tools/demosaic.rs`
+//! gives them all. The directional green, the refit of green and the weighted averages each
+//! earn their place there and on real phone frames; a second round of refitting does not.
 //!
 //! Written here: the crates that demosaic (`bayer`, `rawloader`'s companions) are unmaintained,
 //! bring a whole raw-file stack, or offer only bilinear and Malvar–He–Cutler.
@@ -54,41 +42,34 @@ use rayon::prelude::*;
 use std::sync::{Mutex, PoisonError};
 
 /// Half the side of the guided filter's square window: its statistics, and the average of its
-/// coefficients, are taken over (2·RADIUS + 1)² pixels. Measured with the weighted average
-/// ([`FLOOR`]): 3 is 0.1-0.15 dB above 2 on the simulator's scenes and 0.1-0.25 dB on the real
-/// frames; 4 loses 0.05-0.1 dB on the simulator again.
+/// coefficients, are taken over (2·RADIUS + 1)² pixels. 3 is the best of 2 to 4 on the
+/// simulator's scenes and the real frames.
 const RADIUS: usize = 3;
 
 /// Regularisation of the fit's slope, per sample, in squared encoded units of the Laplacian:
-/// keeps it finite where the guide is flat. Measured: 1e-3 is best on the simulator's scenes
-/// (up to 0.4 dB above 1e-4) but falls up to 1.6 dB below Malvar-He-Cutler on the smoothest
-/// real frames (the phone JPEGs of shared/realstacks, mosaicked), where the Laplacians are
-/// small and the guide goes unused; 1e-5 gains 0.1-0.25 dB there but leaves more false colour
-/// on soft 45° edges (32 against 30 in 8-bit units, more than half bilinear's 60). 1e-4 beats
-/// Malvar-He-Cutler on every real frame.
+/// keeps it finite where the guide is flat. Larger values suit the simulator's scenes but leave
+/// the guide unused on smooth real frames, where the Laplacians are small; smaller ones leave
+/// more false colour on soft 45° edges. 1e-4 beats Malvar-He-Cutler on every real frame.
 const EPS: f32 = 1e-4;
 
 /// Half the length of the one-dimensional windows in which the green's directional colour
-/// differences are fitted. Measured on the simulator's scenes: 2 px windows 0.2 dB below 4-5
-/// px, 1 px 2.5 dB below.
+/// differences are fitted; shorter windows lose on the simulator's scenes.
 const DIR_RADIUS: usize = 5;
 
-/// [`EPS`] of the directional fits. 1e-3 rather than 1e-4: the same on the simulator's scenes,
-/// 0.1-1 dB better on the real frames (1e-2: 0.2 dB worse on the simulator).
+/// [`EPS`] of the directional fits: 1e-3 rather than 1e-4 does as well on the simulator's
+/// scenes and better on the real frames.
 const DIR_EPS: f32 = 1e-3;
 
 /// The least mean squared residual a window's fit is credited with, in squared encoded units,
 /// when its coefficients are averaged with weights the inverse of that residual (see
 /// [`residual_fill`]): below it a window counts as fitting exactly, which keeps the weights
-/// finite and lets the windows of a smooth region share the work evenly. Measured: 1e-5 and
-/// 3e-4 within 0.05 dB of 1e-4 on the simulator's scenes and the real frames; 1e-6 and below
-/// double the false colour on 45° grey edges (92 against 44 in 8-bit units).
+/// finite and lets the windows of a smooth region share the work evenly. Nearby values do as
+/// well; much smaller ones double the false colour on 45° grey edges.
 const FLOOR: f32 = 1e-4;
 
 /// [`FLOOR`] of the directional fits, whose windows hold 5-6 samples of a guide that is itself
-/// interpolated, so that hardly any fits closer. Measured: 1e-3 is 0.1 dB below not weighting
-/// at all on the simulator's sharp scenes but 0.05-0.1 dB above it on the real frames, and
-/// takes 45° edges' false colour from 46 to 40; 1e-4 and below lose 0.2 dB on the simulator.
+/// interpolated, so that hardly any fits closer. 1e-3 helps the real frames and cuts false
+/// colour on 45° edges; smaller values lose on the simulator.
 const DIR_FLOOR: f32 = 1e-3;
 
 /// How far the green's value reaches into the mosaic: the differences 2·DIR_RADIUS + 4 (the
@@ -500,8 +481,7 @@ enum Lattice {
 /// in Kiku, Monno, Tanaka and Okutomi's weighted residual interpolation ("Beyond color
 /// difference: residual interpolation for color image demosaicking", IEEE TIP 2016): near an
 /// edge the windows that straddle it fit neither side, and the plain average let them blur the
-/// colour across it. Measured: +0.4 dB on the simulator's sharp scenes, +0.8 dB through a
-/// 0.5 px blur, -0.1 to +0.1 dB on the real frames (with [`RADIUS`] 3, +0.1 to +0.3 dB).
+/// colour across it.
 ///
 /// Each pass goes a row at a time through row buffers, so that only the coefficients, their
 /// weights (in the residuals' plane until the residuals are taken), the fit and the residuals

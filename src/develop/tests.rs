@@ -82,7 +82,10 @@ fn zipper(img: &Image<u8>) -> u8 {
 fn grey_edges_get_little_false_colour_and_no_zipper() {
     for width in [1.0f32, 3.0] {
         for slope in [0.0f32, 0.2, 1.0] {
-            let m = Mosaic::sample(&sim::develop::grey_edge(slope, width), BayerOrder::Rggb);
+            let m = Mosaic::sample(
+                &sim::demosaic_scenes::grey_edge(slope, width),
+                BayerOrder::Rggb,
+            );
             let good = encode(&demosaic(&m));
             let base = encode(&bilinear(&m));
             let mhc = encode(&encoded(&m, malvar));

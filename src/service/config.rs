@@ -5,8 +5,8 @@ use super::fuse_settings::FuseSettings;
 use crate::backend::iio::IioConfig;
 use crate::backend::input::TriggerConfig;
 use crate::backend::v4l2::V4l2Config;
+use crate::base::setting::{Bounds, Invalid};
 use crate::capture::sweep::SweepConfig;
-use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -115,8 +115,9 @@ pub struct ConfigError(String);
 
 impl Config {
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = crate::bounded_read::read_to_string(path, crate::bounded_read::TEXT_CAP)
-            .map_err(|e| ConfigError(format!("{}: cannot read: {e}", path.display())))?;
+        let text =
+            crate::files::bounded_read::read_to_string(path, crate::files::bounded_read::TEXT_CAP)
+                .map_err(|e| ConfigError(format!("{}: cannot read: {e}", path.display())))?;
         Config::parse(&text).map_err(|(line, why)| {
             ConfigError(match line {
                 Some(l) => format!("{}:{l}: {why}", path.display()),

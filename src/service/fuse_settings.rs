@@ -4,7 +4,7 @@
 //! Options that only make sense for files on the command line (`--reference`, `--no-align`,
 //! `--depthmap`, `--save-transforms`) stay in `cli::fuse`.
 
-use crate::setting::{Bounds, Invalid};
+use crate::base::setting::{Bounds, Invalid};
 use crate::stack::graphcut::GraphCutParams;
 use crate::stack::params::{middle_frame, FuseParams, Method, DEFAULT_BUDGET};
 use serde::{Deserialize, Serialize};

@@ -4,22 +4,24 @@
 
 use super::config::Config;
 use super::fuse_settings::FuseSettings;
+use super::ServiceError;
 use crate::backend::iio::IioImu;
 use crate::backend::replay::faults::{self, Fault};
 use crate::backend::replay::{self, Bundle};
 use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
-use crate::capture::{Camera, CaptureError, Clock, Imu, Take};
-use crate::outputs::Outputs;
+use crate::capture::{Camera, Clock, Imu, Take};
+use crate::files::outputs::Outputs;
 use crate::stack::fuse::{fuse, FuseError};
 use crate::stack::memory::{mib, Plan};
 use crate::stack::Progress;
-use anyhow::{Context, Result};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+type Result<T> = std::result::Result<T, ServiceError>;
 
 /// Where the frames come from.
 #[derive(Clone, Debug, PartialEq)]
@@ -140,14 +142,6 @@ impl From<&Plan> for MemoryReport {
     }
 }
 
-/// Whether a job's error is a cancel rather than a failure.
-pub fn is_cancel(e: &anyhow::Error) -> bool {
-    e.chain().any(|c| {
-        matches!(c.downcast_ref(), Some(CaptureError::Cancelled))
-            || matches!(c.downcast_ref(), Some(FuseError::Cancelled))
-    })
-}
-
 /// Sweeps, fuses and writes `output` (and `report` when given), both atomically. The sweep
 /// reports to `monitor`, the fusion to `progress`; both can cancel.
 pub fn run(
@@ -158,7 +152,7 @@ pub fn run(
     monitor: &dyn Monitor,
     progress: &dyn Progress,
 ) -> Result<Report> {
-    let format = crate::imageio::format_for(output)?;
+    let format = crate::files::imageio::format_for(output)?;
     let mut outs = Outputs::check(
         &[Some(output), report]
             .into_iter()
@@ -194,7 +188,7 @@ pub fn run(
         return Err(FuseError::Cancelled.into());
     }
     let t = Instant::now();
-    let bytes = crate::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
+    let bytes = crate::files::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
     outs.write(output, &bytes)?;
     let mut timings = BTreeMap::from([("capture", capture_ms)]);
     for (stage, d) in &fused.timings {
@@ -215,7 +209,7 @@ pub fn run(
         output: output.display().to_string(),
     };
     if let Some(path) = report {
-        let mut json = serde_json::to_vec_pretty(&r).context("encoding the report")?;
+        let mut json = serde_json::to_vec_pretty(&r).map_err(ServiceError::Report)?;
         json.push(b'\n');
         outs.write(path, &json)?;
     }

@@ -2,10 +2,13 @@
 //! run, the output directory, the D-Bus daemon and its watchdog.
 pub mod config;
 pub mod daemon;
+mod error;
 pub mod feedback;
 pub mod fuse_settings;
 pub mod job;
-pub mod output;
+pub mod output_dir;
 pub mod pictures;
 pub mod proxy;
 pub mod watchdog;
+
+pub use error::ServiceError;

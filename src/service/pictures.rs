@@ -5,7 +5,7 @@
 //! (`XDG_PICTURES_DIR="$HOME/Bilder"` on a phone set to German); a gallery (and the file chooser)
 //! looks there. Without the file, or without the key, it is `$HOME/Pictures`.
 
-use crate::bounded_read;
+use crate::files::bounded_read;
 use std::path::{Path, PathBuf};
 
 /// `$XDG_CONFIG_HOME/user-dirs.dirs` (default `$HOME/.config`)'s Pictures folder, or

@@ -16,7 +16,7 @@
 //! labelling.
 
 pub mod bundle;
-pub mod develop;
+pub mod demosaic_scenes;
 pub mod flats;
 pub mod optics;
 pub mod pose;

@@ -1,7 +1,7 @@
 //! The daemon's fixtures: a private bus, `focusd serve` on it, a zbus client, a systemd notify
 //! socket.
 
-use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy};
+use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy, FocusdError};
 use futures_util::StreamExt;
 use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixDatagram;
@@ -221,10 +221,14 @@ pub async fn connect(bus: &Bus) -> (zbus::Connection, Focusd1Proxy<'static>) {
 }
 
 /// The D-Bus error name and message of a failed call.
-pub fn dbus_error(e: zbus::Error) -> (String, String) {
+pub fn dbus_error(e: FocusdError) -> (String, String) {
+    use zbus::DBusError;
     match e {
-        zbus::Error::MethodError(name, msg, _) => (name.to_string(), msg.unwrap_or_default()),
-        e => panic!("not a method error: {e}"),
+        FocusdError::ZBus(e) => panic!("not a focusd error: {e}"),
+        e => (
+            e.name().to_string(),
+            e.description().unwrap_or_default().into(),
+        ),
     }
 }
 

@@ -10,8 +10,8 @@ pub mod scan;
 pub mod store;
 pub mod sysfs;
 
+use crate::base::setting::{Bounds, Invalid};
 use crate::capture::{CaptureError, Imu, ImuSample, Nanos, Sensor};
-use crate::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};

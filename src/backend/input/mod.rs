@@ -12,9 +12,9 @@ pub mod abi;
 pub mod device;
 pub mod keys;
 
+use crate::base::setting::{Bounds, Invalid};
 use crate::capture::trigger::{KeyId, Keys, Seen};
 use crate::capture::Nanos;
-use crate::setting::{Bounds, Invalid};
 use device::{InputDevice, KeyRead};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, VecDeque};
@@ -236,7 +236,7 @@ impl EvdevKeys {
             format!("trigger keys: cannot use {}", refused.join("; "))
         };
         if summary != self.said && !summary.is_empty() {
-            tracing::warn!("{}", crate::clip::clip(&summary));
+            tracing::warn!("{}", crate::base::clip::clip(&summary));
         }
         self.said = summary;
     }

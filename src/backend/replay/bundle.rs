@@ -4,8 +4,8 @@
 //! come from another machine.
 
 use crate::capture::{ImuSample, Nanos, Sensor};
-use crate::outputs::write_atomic;
-use anyhow::Context as _;
+use crate::files::outputs::write_atomic;
+use crate::files::FileError;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::io::{BufRead, Read as _};
@@ -61,6 +61,23 @@ pub struct BundleError {
     pub reason: String,
 }
 
+/// Why a bundle cannot be written.
+#[derive(Debug, thiserror::Error)]
+pub enum BundleWriteError {
+    #[error("{dir}: cannot create the directory")]
+    CreateDir {
+        dir: String,
+        #[source]
+        error: std::io::Error,
+    },
+    #[error("{file}: not a file in {dir}")]
+    NotInBundle { file: String, dir: String },
+    #[error("encoding bundle.toml")]
+    Manifest(#[source] toml::ser::Error),
+    #[error(transparent)]
+    File(#[from] FileError),
+}
+
 fn err(path: &Path, reason: impl Into<String>) -> BundleError {
     BundleError {
         path: path.display().to_string(),
@@ -74,9 +91,9 @@ impl Bundle {
             .canonicalize()
             .map_err(|e| err(dir, format!("cannot open the bundle: {e}")))?;
         let toml_path = dir.join("bundle.toml");
-        let text = crate::bounded_read::read_to_string(
+        let text = crate::files::bounded_read::read_to_string(
             &inside(&root, &toml_path)?,
-            crate::bounded_read::TEXT_CAP,
+            crate::files::bounded_read::TEXT_CAP,
         )
         .map_err(|e| err(&toml_path, format!("cannot read: {e}")))?;
         let manifest = parse_manifest(&text).map_err(|r| err(&toml_path, r))?;
@@ -206,7 +223,7 @@ fn inside(root: &Path, path: &Path) -> Result<PathBuf, BundleError> {
 }
 
 fn read_imu(path: &Path) -> Result<Vec<ImuSample>, BundleError> {
-    use crate::bounded_read::{check_cap, open_capped};
+    use crate::files::bounded_read::{check_cap, open_capped};
     let cannot = |e: std::io::Error| err(path, format!("cannot read: {e}"));
     let mut r = std::io::BufReader::new(open_capped(path, MAX_CSV_BYTES).map_err(cannot)?);
     let samples = parse_imu(&mut r).map_err(|r| err(path, r))?;
@@ -294,9 +311,11 @@ pub struct BundleWriter {
 }
 
 impl BundleWriter {
-    pub fn create(dir: &Path, lens_range: (i32, i32)) -> anyhow::Result<BundleWriter> {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+    pub fn create(dir: &Path, lens_range: (i32, i32)) -> Result<BundleWriter, BundleWriteError> {
+        std::fs::create_dir_all(dir).map_err(|error| BundleWriteError::CreateDir {
+            dir: dir.display().to_string(),
+            error,
+        })?;
         Ok(BundleWriter {
             dir: dir.to_path_buf(),
             manifest: Manifest {
@@ -316,7 +335,7 @@ impl BundleWriter {
         exposure: (Nanos, Nanos),
         extension: &str,
         bytes: &[u8],
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), BundleWriteError> {
         let take = self
             .manifest
             .takes
@@ -342,9 +361,12 @@ impl BundleWriter {
         lens: i32,
         exposure: (Nanos, Nanos),
         file: &str,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), BundleWriteError> {
         if !is_plain_relative(file) || !self.dir.join(file).is_file() {
-            anyhow::bail!("{file}: not a file in {}", self.dir.display());
+            return Err(BundleWriteError::NotInBundle {
+                file: file.to_string(),
+                dir: self.dir.display().to_string(),
+            });
         }
         self.manifest.takes.push(TakeEntry {
             plane,
@@ -356,7 +378,7 @@ impl BundleWriter {
         Ok(())
     }
 
-    pub fn finish(self, imu: &[ImuSample]) -> anyhow::Result<()> {
+    pub fn finish(self, imu: &[ImuSample]) -> Result<(), BundleWriteError> {
         let mut csv = String::from("t_ns,sensor,x,y,z\n");
         for s in imu {
             let name = match s.sensor {
@@ -367,9 +389,12 @@ impl BundleWriter {
             writeln!(csv, "{},{name},{x},{y},{z}", s.t).expect("writing to a String");
         }
         write_atomic(&self.dir.join("imu.csv"), csv.as_bytes())?;
-        let toml = toml::to_string(&self.manifest).context("encoding bundle.toml")?;
+        let toml = toml::to_string(&self.manifest).map_err(BundleWriteError::Manifest)?;
         let text = format!("# focusd replay bundle: see sim-data/README.md\n{toml}");
-        write_atomic(&self.dir.join("bundle.toml"), text.as_bytes())
+        Ok(write_atomic(
+            &self.dir.join("bundle.toml"),
+            text.as_bytes(),
+        )?)
     }
 }
 

@@ -8,7 +8,7 @@ pub mod bundle;
 pub mod faults;
 
 use crate::capture::{Camera, CaptureError, Clock, Imu, ImuSample, Nanos, Take};
-pub use bundle::{Bundle, BundleError, BundleWriter};
+pub use bundle::{Bundle, BundleError, BundleWriteError, BundleWriter};
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
 
@@ -131,7 +131,8 @@ impl Camera for ReplayCamera {
             .bundle
             .file(&entry.image)
             .map_err(|e| bundle_error(e.to_string()))?;
-        let image = crate::imageio::load_rgb8(&path).map_err(|e| bundle_error(format!("{e:#}")))?;
+        let image = crate::files::imageio::load_rgb8(&path)
+            .map_err(|e| bundle_error(crate::base::clip::chain(&e)))?;
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
             image,

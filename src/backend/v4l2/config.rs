@@ -2,7 +2,7 @@
 
 use super::format::PixelFormat;
 use super::lens::ControlSpec;
-use crate::setting::{Bounds, Invalid};
+use crate::base::setting::{Bounds, Invalid};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 

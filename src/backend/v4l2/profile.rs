@@ -148,9 +148,11 @@ impl Profile {
     /// A shipped profile by name, or a file by path (anything with a `/` or ending `.toml`).
     pub fn load(spec: &str) -> Result<Profile, String> {
         if spec.contains('/') || spec.ends_with(".toml") {
-            let text =
-                crate::bounded_read::read_to_string(Path::new(spec), crate::bounded_read::TEXT_CAP)
-                    .map_err(|e| format!("device profile {spec}: {e}"))?;
+            let text = crate::files::bounded_read::read_to_string(
+                Path::new(spec),
+                crate::files::bounded_read::TEXT_CAP,
+            )
+            .map_err(|e| format!("device profile {spec}: {e}"))?;
             return Profile::parse(&text, spec);
         }
         let (_, text) = SHIPPED.iter().find(|(n, _)| *n == spec).ok_or_else(|| {

@@ -534,15 +534,29 @@ pub const MEDIA_IOC_G_TOPOLOGY: Opcode = opcode::read_write::<MediaV2Topology>(b
 /// null pointers, for which all-zero bytes are a valid value (and what the kernel expects in
 /// the reserved fields).
 pub fn zeroed<T: Zeroable>() -> T {
-    // SAFETY: `Zeroable` is implemented only for the plain-data structures above.
+    // SAFETY: `Zeroable`'s contract is that all-zero bytes are a valid `T`.
     unsafe { std::mem::zeroed() }
 }
 
 /// The structures of this module, for which all-zero bytes are a valid value.
-pub trait Zeroable {}
+///
+/// # Safety
+///
+/// An implementor must be valid when all of its bytes are zero: only integers, arrays and
+/// unions of those, and raw pointers (null) — no references, `NonNull`, `bool`, `char`, enums
+/// or other types with invalid bit patterns. [`zeroed`] relies on it.
+pub unsafe trait Zeroable {}
 
+/// `unsafe impl Zeroable` for each type named: only this module's UAPI structures.
 macro_rules! zeroable {
-    ($($t:ty),*) => { $(impl Zeroable for $t {})* };
+    ($($t:ty),*) => {
+        $(
+            // SAFETY: each type named is a `#[repr(C)]` UAPI structure of this module made only
+            // of integers, arrays and unions of those, and raw pointers, for which all-zero
+            // bytes are valid.
+            unsafe impl Zeroable for $t {}
+        )*
+    };
 }
 zeroable!(
     Capability,

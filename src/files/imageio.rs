@@ -1,14 +1,16 @@
-//! Image files in and out: decoding with limits and EXIF orientation, encoding by extension,
-//! atomic writes.
+//! Image files in and out: decoding with limits and EXIF orientation, encoding by extension
+//! (`outputs` writes the bytes).
 
-use crate::bounded_read;
+use super::bounded_read;
+use super::error::{shown, FileError};
 use crate::stack::image::{Image, Sample};
-use anyhow::{anyhow, bail, Context, Result};
 use image::metadata::Orientation;
 use image::{DynamicImage, ImageDecoder, ImageFormat};
 use std::fs;
 use std::io::{BufRead, BufReader, Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
+
+type Result<T> = std::result::Result<T, FileError>;
 
 /// Refuse headers that claim more than this many pixels before allocating (decompression bombs).
 pub const MAX_PIXELS: u64 = 200_000_000;
@@ -55,7 +57,6 @@ pub fn probe(path: &Path) -> Result<Header> {
 /// must be a regular file ([`bounded_read`]); the decoder may allocate the pixels its header
 /// declares (at most [`MAX_PIXELS`]) and [`ANCILLARY_BYTES`] more.
 pub fn load(path: &Path) -> Result<Decoded> {
-    let name = path.display();
     let mut decoder = open_decoder(path)?;
     header(path, &mut decoder)?;
     let (width, height) = decoder.dimensions();
@@ -63,7 +64,10 @@ pub fn load(path: &Path) -> Result<Decoded> {
     limits.max_image_width = Some(width);
     limits.max_image_height = Some(height);
     limits.max_alloc = Some(decoder.total_bytes().saturating_add(ANCILLARY_BYTES));
-    let corrupt = |e| anyhow!("{name}: corrupt or truncated image: {e}");
+    let corrupt = |e: image::ImageError| FileError::Truncated {
+        path: shown(path),
+        reason: e.to_string(),
+    };
     decoder.set_limits(limits).map_err(corrupt)?;
     // Phones store portrait shots as landscape pixels plus an EXIF orientation: the frames are
     // turned upright here, so a stack mixing orientations still registers, and the output's
@@ -78,19 +82,22 @@ pub fn load(path: &Path) -> Result<Decoded> {
 /// a stack mixing stored orientations compares as it fuses), refused when focusd cannot fuse it
 /// faithfully.
 fn header(path: &Path, decoder: &mut impl ImageDecoder) -> Result<Header> {
-    let name = path.display();
     let (w, h) = decoder.dimensions();
     if w as u64 * h as u64 > MAX_PIXELS {
-        bail!("{name}: {w}x{h} is larger than the {MAX_PIXELS}-pixel limit");
+        return Err(FileError::TooLarge {
+            path: shown(path),
+            width: w,
+            height: h,
+            limit: MAX_PIXELS,
+        });
     }
     let color = decoder.color_type();
     let sample_bytes = usize::from(color.bytes_per_pixel() / color.channel_count());
     if sample_bytes > 2 {
-        // Floating-point samples have no white point: values above 1.0 would clip to white.
-        bail!(
-            "{name}: {color:?} samples (32-bit floating point) are not supported; convert the \
-             stack to 16-bit integer TIFF or PNG with one scale for every frame"
-        );
+        return Err(FileError::FloatSamples {
+            path: shown(path),
+            color,
+        });
     }
     let turned = matches!(
         decoder.orientation(),
@@ -110,14 +117,19 @@ fn header(path: &Path, decoder: &mut impl ImageDecoder) -> Result<Header> {
 
 /// A decoder over the file with its header read under [`ANCILLARY_BYTES`].
 fn open_decoder(path: &Path) -> Result<impl ImageDecoder> {
-    let name = path.display();
-    let cannot_read = |e: std::io::Error| anyhow!("{name}: cannot read: {e}");
-    let file = bounded_read::open(path).map_err(|e| anyhow!("{name}: cannot open: {e}"))?;
+    let cannot_read = |error| FileError::Read {
+        path: shown(path),
+        error,
+    };
+    let file = bounded_read::open(path).map_err(|error| FileError::Open {
+        path: shown(path),
+        error,
+    })?;
     let mut file = BufReader::new(file);
     let format = image::guess_format(file.fill_buf().map_err(cannot_read)?)
         .ok()
         .filter(|f| matches!(f, ImageFormat::Jpeg | ImageFormat::Png | ImageFormat::Tiff))
-        .ok_or_else(|| anyhow!("{name}: not a JPEG, PNG or TIFF image"))?;
+        .ok_or_else(|| FileError::NotAnImage { path: shown(path) })?;
     let source = match format {
         // The JPEG decoder reads its whole input first: it gets the file up to its
         // end-of-image marker, so trailing bytes are never read.
@@ -132,24 +144,29 @@ fn open_decoder(path: &Path) -> Result<impl ImageDecoder> {
     let mut limits = image::Limits::default();
     limits.max_alloc = Some(ANCILLARY_BYTES);
     reader.limits(limits);
-    reader
-        .into_decoder()
-        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))
+    reader.into_decoder().map_err(|e| unsupported(path, e))
 }
 
 /// A multipage TIFF's first page is often a thumbnail: fusing it silently would be wrong.
 fn single_page(path: &Path) -> Result<()> {
-    let name = path.display();
-    let file = bounded_read::open(path).with_context(|| format!("{name}: cannot read"))?;
-    let tiff = tiff::decoder::Decoder::new(BufReader::new(file))
-        .map_err(|e| anyhow!("{name}: corrupt or unsupported image: {e}"))?;
+    let file = bounded_read::open(path).map_err(|error| FileError::ReadFile {
+        path: shown(path),
+        error,
+    })?;
+    let tiff =
+        tiff::decoder::Decoder::new(BufReader::new(file)).map_err(|e| unsupported(path, e))?;
     if tiff.more_images() {
-        bail!(
-            "{name}: a multipage TIFF; focusd fuses single images: save the page you mean as a \
-             file of its own"
-        );
+        return Err(FileError::Multipage { path: shown(path) });
     }
     Ok(())
+}
+
+/// `path: corrupt or unsupported image: REASON`.
+fn unsupported(path: &Path, reason: impl std::fmt::Display) -> FileError {
+    FileError::Unsupported {
+        path: shown(path),
+        reason: reason.to_string(),
+    }
 }
 
 /// The JPEG file from its start to its end-of-image marker, read no further. The decoder fills
@@ -159,13 +176,14 @@ fn single_page(path: &Path) -> Result<()> {
 /// marker, since scan data escapes FF as FF 00. The frame header (SOF) bounds what may follow:
 /// compressed data several times the size of its raw pixels is not a photograph.
 fn jpeg_until_end(path: &Path, mut file: impl BufRead) -> Result<Vec<u8>> {
-    let name = path.display();
-    let truncated = || {
-        anyhow!(
-            "{name}: corrupt or truncated image: the JPEG data ends before its end-of-image marker"
-        )
+    let truncated = || FileError::Truncated {
+        path: shown(path),
+        reason: "the JPEG data ends before its end-of-image marker".into(),
     };
-    let cannot_read = |e: std::io::Error| anyhow!("{name}: cannot read: {e}");
+    let cannot_read = |error| FileError::Read {
+        path: shown(path),
+        error,
+    };
     let mut out = Vec::new();
     let next = |file: &mut dyn BufRead, out: &mut Vec<u8>| -> Result<u8> {
         let mut b = [0u8];
@@ -177,26 +195,26 @@ fn jpeg_until_end(path: &Path, mut file: impl BufRead) -> Result<Vec<u8>> {
         Ok(b[0])
     };
     if (next(&mut file, &mut out)?, next(&mut file, &mut out)?) != (0xFF, 0xD8) {
-        bail!("{name}: corrupt or unsupported image: no JPEG start-of-image marker");
+        return Err(unsupported(path, "no JPEG start-of-image marker"));
     }
     // Before the frame header is known: the segments ahead of it (EXIF, ICC, thumbnails).
     let mut cap = ANCILLARY_BYTES as usize;
     loop {
         if next(&mut file, &mut out)? != 0xFF {
-            bail!("{name}: corrupt or unsupported image: JPEG marker expected");
+            return Err(unsupported(path, "JPEG marker expected"));
         }
         let mut marker = next(&mut file, &mut out)?;
         while marker == 0xFF {
             marker = next(&mut file, &mut out)?;
         }
         if marker == 0xD9 {
-            bail!("{name}: corrupt or unsupported image: JPEG ends before any image data");
+            return Err(unsupported(path, "JPEG ends before any image data"));
         }
         let len = u16::from_be_bytes([next(&mut file, &mut out)?, next(&mut file, &mut out)?]);
         let start = out.len();
         let body = usize::from(len).saturating_sub(2);
         if out.len() + body > cap {
-            bail!("{name}: corrupt or unsupported image: JPEG headers over {cap} bytes");
+            return Err(unsupported(path, format!("JPEG headers over {cap} bytes")));
         }
         out.resize(start + body, 0);
         file.read_exact(&mut out[start..])
@@ -241,10 +259,10 @@ fn jpeg_until_end(path: &Path, mut file: impl BufRead) -> Result<Vec<u8>> {
             return Ok(out);
         }
         if out.len() > cap {
-            bail!(
-                "{name}: corrupt or unsupported image: over {cap} bytes of JPEG data without an \
-                 end-of-image marker"
-            );
+            return Err(unsupported(
+                path,
+                format!("over {cap} bytes of JPEG data without an end-of-image marker"),
+            ));
         }
     }
 }
@@ -373,10 +391,10 @@ pub fn format_for(path: &Path) -> Result<ImageFormat> {
         "jpg" | "jpeg" => Ok(ImageFormat::Jpeg),
         "png" => Ok(ImageFormat::Png),
         "tif" | "tiff" => Ok(ImageFormat::Tiff),
-        _ => bail!(
-            "{}: unknown output extension {ext:?}; use .jpg, .png or .tif",
-            path.display()
-        ),
+        _ => Err(FileError::UnknownExtension {
+            path: shown(path),
+            ext,
+        }),
     }
 }
 
@@ -404,18 +422,16 @@ pub fn encode<T: Sample>(img: &Image<T>, format: ImageFormat, quality: u8) -> Re
     Ok(buf.into_inner())
 }
 
-/// Baseline JPEG at `quality`, chroma at full resolution (4:4:4, as `image`'s encoder wrote it).
-/// Through `jpeg-encoder` rather than `image`'s own encoder: its AVX2 path wrote a 5.5 MP
-/// frame in 50 ms against 115, at the same size and PSNR (1.35 against 1.32 MB, 46.8 against
-/// 46.7 dB), and saving had been a tenth of a 3-frame 5.5 MP fuse.
+/// Baseline JPEG at `quality`, chroma at full resolution (4:4:4). Through `jpeg-encoder` rather
+/// than `image`'s own encoder: its SIMD path is about twice as fast at the same size and
+/// quality.
 fn jpeg<T: Sample>(img: &Image<T>, quality: u8) -> Result<Vec<u8>> {
     let side = |v: usize| u16::try_from(v).ok().filter(|&v| v > 0);
     let (Some(w), Some(h)) = (side(img.width), side(img.height)) else {
-        bail!(
-            "a JPEG holds 1 to 65535 pixels a side, not {}x{}: write .png or .tif",
-            img.width,
-            img.height
-        );
+        return Err(FileError::JpegSize {
+            width: img.width,
+            height: img.height,
+        });
     };
     let colour = match img.channels {
         1 => jpeg_encoder::ColorType::Luma,
@@ -426,12 +442,6 @@ fn jpeg<T: Sample>(img: &Image<T>, quality: u8) -> Result<Vec<u8>> {
     enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_4_4);
     enc.encode(&img.convert::<u8>().data, w, h, colour)?;
     Ok(out)
-}
-
-/// Encodes by `path`'s extension and writes atomically.
-pub fn save<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
-    let bytes = encode(img, format_for(path)?, quality)?;
-    crate::outputs::write_atomic(path, &bytes)
 }
 
 #[cfg(test)]

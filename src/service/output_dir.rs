@@ -1,24 +1,23 @@
 //! The output directory: the only place the daemon writes images, under names it makes
-//! itself from the capture time, so no caller can steer a write anywhere else.
+//! itself from the capture time, so no caller can steer a write anywhere else. The writing
+//! itself is `files::outputs`'s.
 
 use super::config::OutputConfig;
-use anyhow::{Context, Result};
+use super::ServiceError;
 use std::path::PathBuf;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Creates the output directory if needed.
-pub fn prepare(out: &OutputConfig) -> Result<()> {
-    std::fs::create_dir_all(out.dir()).with_context(|| {
-        format!(
-            "[output] dir {}: cannot create it (set [output] dir to a writable directory)",
-            out.dir().display()
-        )
+pub fn prepare(out: &OutputConfig) -> Result<(), ServiceError> {
+    std::fs::create_dir_all(out.dir()).map_err(|error| ServiceError::OutputDir {
+        dir: out.dir().display().to_string(),
+        error,
     })
 }
 
 /// The image and report paths of a capture made now: `focus-YYYYMMDD-HHMMSS.jpg` in UTC, with
 /// `-2`, `-3`, ... when that name is taken.
-pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf)> {
+pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf), ServiceError> {
     prepare(out)?;
     let secs = SystemTime::now()
         .duration_since(UNIX_EPOCH)

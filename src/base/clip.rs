@@ -24,6 +24,18 @@ pub fn clip(message: &str) -> String {
     )
 }
 
+/// An error and its causes, `: `-joined as `focusd: error:` prints them: what a user reads.
+pub fn chain(error: &dyn std::error::Error) -> String {
+    let mut out = error.to_string();
+    let mut cause = error.source();
+    while let Some(e) = cause {
+        out.push_str(": ");
+        out.push_str(&e.to_string());
+        cause = e.source();
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

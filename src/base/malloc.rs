@@ -4,18 +4,13 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 
 /// Serves every allocation of 1 MiB or more with its own mapping, unmapped when freed. glibc's
-/// default raises that threshold to the size of the largest buffer freed so far (up to 32 MiB),
-/// after which frames and planes come from the heap, where a freed plane between two live ones
-/// cannot be returned: a hand-held 10 × 3 MP fuse then peaked at 297 MB against 251 MB with
-/// this, and 15 × 6 MP at 520 against 487 MB, no slower.
+/// default raises that threshold to the size of the largest buffer freed so far, after which
+/// frames and planes come from the heap, where a freed plane between two live ones cannot be
+/// returned and the peak grows.
 ///
-/// Keeps up to 4 MiB free at the top of each heap instead of glibc's 128 KiB (fixed, like the
-/// mapping threshold, once either is set): the stages free and allocate planes under 1 MiB
-/// (the spill's and the local registration's reduced planes, blurred again and again), and
-/// with 128 KiB each free handed the pages back and the next allocation faulted them in
-/// again, zeroed: the kernel's page faults were 15 % of the CPU of a 25 × 1.2 MP fuse. With
-/// 4 MiB its system time fell 1.0 → 0.6 s, a hand-held 10 × 3 MP's 0.98 → 0.68 s, peak RSS
-/// unchanged (8 MiB added 7 MB on 10 × 3 MP, 16 MiB 29 MB).
+/// Keeps up to 4 MiB free at the top of each heap instead of glibc's 128 KiB: the stages free
+/// and allocate planes under 1 MiB again and again, and a smaller threshold hands the pages
+/// back only for the next allocation to fault them in again, zeroed, in the kernel's time.
 pub fn tune() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
@@ -28,11 +23,9 @@ pub fn tune() {
 }
 
 /// Hands memory freed by the last stage back to the OS. glibc keeps what rayon's worker threads
-/// free in their own arenas, so without this a hand-held 10 × 3 MP fuse peaks at 355 MB of
-/// resident memory for a working set of 265 MB (measured with `MALLOC_ARENA_MAX=1`); with it,
-/// about the working set. Costs a few milliseconds per stage. Every progress reporter (the
-/// CLI's bar, the daemon's) calls it when a stage begins, so the engine stays free of allocator
-/// calls.
+/// free in their own arenas, so without this the resident memory stays well above the working
+/// set. Costs a few milliseconds per stage. Every progress reporter (the CLI's bar, the
+/// daemon's) calls it when a stage begins, so the engine stays free of allocator calls.
 pub fn release_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: malloc_trim only releases free heap pages; it is safe to call at any time.
@@ -44,14 +37,8 @@ pub fn release_freed_memory() {
 /// The system allocator, with the whole huge pages inside every buffer of 2 MiB or more
 /// ([`whole_pages`]) marked for transparent huge pages (`madvise(MADV_HUGEPAGE)`) before it
 /// is first touched. Frames and planes are mapped afresh for each stage (see [`tune`]) and
-/// faulted in 4 KiB at a time: a 3 × 5.5 MP fuse (cuisine_phone) took 186k page faults, 30 %
-/// of its CPU in the kernel; with 2 MiB pages (from 4 MiB buffers up, at first) 57k,
-/// and its wall time fell 7–14 % (two sets of interleaved runs, 1.12 → 1.04 and 1.03 → 0.89 s;
-/// amber_macro 3–7 %, flats 25 5 %), peak RSS unchanged. The 1.9–3.1 MP synthetic stacks are
-/// not faster: their faults fell by a fifth (layered 153k → 120k). Most of the rest are in the
-/// worker threads' glibc arenas, whose buffers under 1 MiB are freed, trimmed and faulted in
-/// again; a trim threshold of 32 MiB took layered to 83k faults but its peak RSS 158 → 199 MB,
-/// for no measurable time.
+/// would otherwise be faulted in 4 KiB at a time, a large share of a fuse's CPU spent in the
+/// kernel; 2 MiB pages cut the faults several-fold, for the same peak memory.
 ///
 /// Kernels that default to `madvise` for huge pages (Debian's) give them only when asked; where
 /// there are none the call fails and nothing changes, and where memory is too fragmented for

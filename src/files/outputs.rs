@@ -1,5 +1,6 @@
 //! Writing output files so that nothing partial is ever left under a final name, and a
-//! command's outputs land all together or not at all.
+//! command's outputs land all together or not at all. Every file focusd writes goes through
+//! here: images, depth maps, reports, transforms and replay bundles.
 //!
 //! `fuse` writes an image and perhaps a depth map and transforms; `capture` an image and perhaps
 //! a report. A user who finds one of them trusts the others, and a bad output path should not be
@@ -8,13 +9,17 @@
 //! directory writable, whoever runs it), the work writes into those, and [`Outputs::commit`]
 //! renames them all at the end; on any failure before that, dropping the set removes them.
 
-use anyhow::{anyhow, bail, Result};
+use super::error::{shown, FileError};
+use super::imageio;
+use crate::stack::image::{Image, Sample};
 use std::ffi::OsStr;
 use std::fs::{self, File, OpenOptions};
 use std::io::Write;
 use std::os::unix::ffi::OsStrExt;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
+
+type Result<T> = std::result::Result<T, FileError>;
 
 /// Bytes of the final name kept in a temporary name: with the dot, the process id and `.tmp`
 /// it stays under the 255 bytes a file name may have.
@@ -29,7 +34,7 @@ pub fn temp_path(path: &Path) -> Result<PathBuf> {
     };
     let name = path
         .file_name()
-        .ok_or_else(|| anyhow!("{}: not a file path", path.display()))?
+        .ok_or_else(|| FileError::NotAFilePath { path: shown(path) })?
         .as_bytes();
     let mut end = name.len().min(NAME_BYTES_KEPT);
     // A UTF-8 name is cut between characters, so the temporary name stays readable.
@@ -55,7 +60,10 @@ fn create_temp(path: &Path) -> Result<(PathBuf, File)> {
         .write(true)
         .create_new(true)
         .open(&tmp)
-        .map_err(|e| anyhow!("{}: cannot write: {e}", path.display()))?;
+        .map_err(|error| FileError::Write {
+            path: shown(path),
+            error,
+        })?;
     Ok((tmp, file))
 }
 
@@ -65,6 +73,20 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     let mut set = Outputs::check(&[path], &[])?;
     set.write(path, bytes)?;
     set.commit()
+}
+
+/// Encodes `img` by `path`'s extension and writes it atomically.
+pub fn save_image<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result<()> {
+    let bytes = imageio::encode(img, imageio::format_for(path)?, quality)?;
+    write_atomic(path, &bytes)
+}
+
+/// Removes `path`'s temporary file, if any: what a job abandoned without dropping its
+/// [`Outputs`] (a thread blocked for good) leaves behind.
+pub fn discard_temp(path: &Path) {
+    if let Ok(tmp) = temp_path(path) {
+        let _ = fs::remove_file(tmp);
+    }
 }
 
 struct Staged {
@@ -87,31 +109,33 @@ impl Outputs {
         let inode = |p: &Path| fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
         let mut set = Outputs { staged: Vec::new() };
         for &path in outputs {
-            let name = path.display();
             let dir = match path.parent() {
                 Some(d) if !d.as_os_str().is_empty() => d,
                 _ => Path::new("."),
             };
             if !dir.is_dir() {
-                bail!("{name}: output directory {} does not exist", dir.display());
+                return Err(FileError::NoDirectory {
+                    path: shown(path),
+                    dir: shown(dir),
+                });
             }
             if path.is_dir() {
-                bail!("{name}: is a directory; name an output file");
+                return Err(FileError::IsADirectory { path: shown(path) });
             }
             if let Some(n) = inode(path) {
                 if let Some(input) = inputs.iter().find(|p| inode(p) == Some(n)) {
-                    bail!(
-                        "{name}: is the input {}; name another output file",
-                        input.display()
-                    );
+                    return Err(FileError::IsAnInput {
+                        path: shown(path),
+                        input: shown(input),
+                    });
                 }
             }
             let (tmp, file) = create_temp(path)?;
             if let Some(other) = set.staged.iter().find(|s| same_file(&s.tmp, &tmp)) {
-                bail!(
-                    "{name}: is the same file as the output {}",
-                    other.path.display()
-                );
+                return Err(FileError::SameFile {
+                    path: shown(path),
+                    other: shown(&other.path),
+                });
             }
             set.staged.push(Staged {
                 path: path.to_path_buf(),
@@ -129,12 +153,15 @@ impl Outputs {
             .staged
             .iter_mut()
             .find(|s| s.path == path)
-            .ok_or_else(|| anyhow!("{}: not an output checked before the work", path.display()))?;
+            .ok_or_else(|| FileError::NotChecked { path: shown(path) })?;
         (|| {
             s.file.write_all(bytes)?;
             s.file.sync_all()
         })()
-        .map_err(|e| anyhow!("{}: cannot write: {e}", path.display()))?;
+        .map_err(|error| FileError::Write {
+            path: shown(path),
+            error,
+        })?;
         s.written = true;
         Ok(())
     }
@@ -142,13 +169,18 @@ impl Outputs {
     /// Renames every output into place, once all of them are written.
     pub fn commit(mut self) -> Result<()> {
         if let Some(s) = self.staged.iter().find(|s| !s.written) {
-            bail!("{}: nothing was written to it", s.path.display());
+            return Err(FileError::NothingWritten {
+                path: shown(&s.path),
+            });
         }
         for s in std::mem::take(&mut self.staged) {
             let done = fs::rename(&s.tmp, &s.path);
             if let Err(e) = done {
                 let _ = fs::remove_file(&s.tmp);
-                bail!("{}: cannot write: {e}", s.path.display());
+                return Err(FileError::Write {
+                    path: shown(&s.path),
+                    error: e,
+                });
             }
         }
         Ok(())

@@ -1,0 +1,8 @@
+//! Files in and out: reading what focusd parses without hanging on it or growing without
+//! bound, decoding and encoding images, and writing outputs so that nothing partial lands.
+pub mod bounded_read;
+mod error;
+pub mod imageio;
+pub mod outputs;
+
+pub use error::FileError;

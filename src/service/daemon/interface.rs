@@ -1,0 +1,130 @@
+//! The `org.focusd.Focusd1` interface: its methods, properties and signals, and the errors
+//! callers get.
+
+use super::access::{cancel, start, Owner};
+use super::state::Shared;
+use std::sync::Arc;
+use zbus::message::Header;
+use zbus::object_server::SignalEmitter;
+use zbus::{interface, DBusError};
+
+/// Errors callers get, as `org.focusd.Error.*`.
+#[derive(Debug, DBusError)]
+#[zbus(prefix = "org.focusd.Error")]
+pub enum FocusdError {
+    #[zbus(error)]
+    ZBus(zbus::Error),
+    /// A job is already running.
+    Busy(String),
+    /// `Cancel` named a job that is not running.
+    NoSuchJob(String),
+    /// The output directory cannot be used.
+    Output(String),
+    /// The call's arguments are not the method's.
+    InvalidArgs(String),
+    /// `Cancel` of a job another user started.
+    AccessDenied(String),
+}
+
+pub struct Focusd {
+    pub(super) shared: Arc<Shared>,
+}
+
+/// `proxy` also generates the client side, `Focusd1Proxy` and its signal streams, from these
+/// declarations.
+#[interface(
+    name = "org.focusd.Focusd1",
+    proxy(
+        default_service = "org.focusd.Focusd",
+        default_path = "/org/focusd/Focusd",
+        async_name = "Focusd1Proxy"
+    )
+)]
+impl Focusd {
+    /// Starts a capture (sweep, register, fuse) and returns its job id at once; the result
+    /// comes as `Finished` or `Failed`.
+    async fn capture(
+        &self,
+        #[zbus(header)] header: Header<'_>,
+        #[zbus(connection)] conn: &zbus::Connection,
+    ) -> Result<String, FocusdError> {
+        // zbus passes a method without arguments whatever body came with the call.
+        let got = header.signature().to_string();
+        if !got.is_empty() {
+            return Err(FocusdError::InvalidArgs(format!(
+                "Capture takes no arguments, got signature {got:?}"
+            )));
+        }
+        let owner = caller_uid(&header, conn).await?;
+        start(&self.shared, Owner::Caller(owner))
+    }
+
+    /// Stops a running job; it ends with `Failed(job, "cancelled")`. Only the user that started
+    /// it, and root, may; a job a hardware key started, anyone the D-Bus policy lets call.
+    async fn cancel(
+        &self,
+        job: &str,
+        #[zbus(header)] header: Header<'_>,
+        #[zbus(connection)] conn: &zbus::Connection,
+    ) -> Result<(), FocusdError> {
+        let caller = caller_uid(&header, conn).await?;
+        cancel(&self.shared, job, caller)
+    }
+
+    /// `idle`, `waiting-still`, `sweeping`, `registering` or `fusing`.
+    #[zbus(property)]
+    pub(super) fn state(&self) -> String {
+        let s = self.shared.lock();
+        if s.running.is_some() { s.stage } else { "idle" }.to_string()
+    }
+
+    /// The path of the last image written, or "".
+    #[zbus(property)]
+    fn last_result(&self) -> String {
+        self.shared.lock().last_result.clone()
+    }
+
+    #[zbus(property)]
+    fn version(&self) -> String {
+        env!("CARGO_PKG_VERSION").to_string()
+    }
+
+    #[zbus(signal)]
+    pub(super) async fn progress(
+        emitter: &SignalEmitter<'_>,
+        job: &str,
+        stage: &str,
+        done: u32,
+        total: u32,
+    ) -> zbus::Result<()>;
+
+    #[zbus(signal)]
+    pub(super) async fn finished(
+        emitter: &SignalEmitter<'_>,
+        job: &str,
+        path: &str,
+    ) -> zbus::Result<()>;
+
+    #[zbus(signal)]
+    pub(super) async fn failed(
+        emitter: &SignalEmitter<'_>,
+        job: &str,
+        error: &str,
+    ) -> zbus::Result<()>;
+}
+
+/// The uid of a method call's sender, from the bus.
+pub(super) async fn caller_uid(
+    header: &Header<'_>,
+    conn: &zbus::Connection,
+) -> Result<u32, FocusdError> {
+    let sender = header
+        .sender()
+        .ok_or_else(|| FocusdError::AccessDenied("the call names no sender".into()))?;
+    let dbus = zbus::fdo::DBusProxy::new(conn).await?;
+    let uid = dbus
+        .get_connection_unix_user(sender.clone().into())
+        .await
+        .map_err(|e| FocusdError::AccessDenied(format!("cannot tell who {sender} is: {e}")))?;
+    Ok(uid)
+}
