@@ -9,6 +9,8 @@
 //! focused farthest) still spills into those frames, and by about as much as the chain of its
 //! nearer pairs says.
 
+use nalgebra::{DMatrix, DVector};
+
 /// A measured blur: frames `near` and `far` (depth ranks, `near < far`) and its σ.
 pub type Measured = (usize, usize, f32);
 
@@ -32,8 +34,8 @@ pub fn positions(n: usize, measured: &[Measured]) -> Option<Vec<f32>> {
     let step = f64::from(per_frame[per_frame.len() / 2]);
     // Normal equations of the unknowns φ_1..φ_{n-1}; φ_0 = 0 is dropped from them.
     let m = n - 1;
-    let mut a = vec![0.0f64; m * m];
-    let mut b = vec![0.0f64; m];
+    let mut a = DMatrix::<f64>::zeros(m, m);
+    let mut b = DVector::<f64>::zeros(m);
     let mut equation = |k: usize, l: usize, target: f64, weight: f64| {
         for (i, si) in [(k, -1.0), (l, 1.0)] {
             if i == 0 {
@@ -42,7 +44,7 @@ pub fn positions(n: usize, measured: &[Measured]) -> Option<Vec<f32>> {
             b[i - 1] += weight * si * target;
             for (j, sj) in [(k, -1.0), (l, 1.0)] {
                 if j != 0 {
-                    a[(i - 1) * m + j - 1] += weight * si * sj;
+                    a[(i - 1, j - 1)] += weight * si * sj;
                 }
             }
         }
@@ -53,38 +55,14 @@ pub fn positions(n: usize, measured: &[Measured]) -> Option<Vec<f32>> {
     for k in 0..m {
         equation(k, k + 1, step, PRIOR);
     }
-    let phi = solve_positive_definite(a, b, m)?;
+    // The prior's chain makes the normal equations positive definite; one unknown per frame, so
+    // the matrix is sized at run time.
+    let phi = a.cholesky()?.solve(&b);
     Some(
         std::iter::once(0.0)
-            .chain(phi.into_iter().map(|v| v as f32))
+            .chain(phi.iter().map(|&v| v as f32))
             .collect(),
     )
-}
-
-/// Solves `a x = b` for a symmetric positive definite `a` (`m` × `m`, row-major) by Cholesky
-/// decomposition: the prior's chain makes the normal equations so. `None` if `a` is not. (A
-/// system of one unknown per frame: twenty lines here rather than a linear-algebra crate.)
-fn solve_positive_definite(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Option<Vec<f64>> {
-    // a = L Lᵀ, L written over a's lower triangle.
-    for j in 0..m {
-        let d = a[j * m + j] - (0..j).map(|k| a[j * m + k].powi(2)).sum::<f64>();
-        if d <= 0.0 {
-            return None;
-        }
-        let d = d.sqrt();
-        a[j * m + j] = d;
-        for i in j + 1..m {
-            let s = a[i * m + j] - (0..j).map(|k| a[i * m + k] * a[j * m + k]).sum::<f64>();
-            a[i * m + j] = s / d;
-        }
-    }
-    for i in 0..m {
-        b[i] = (b[i] - (0..i).map(|k| a[i * m + k] * b[k]).sum::<f64>()) / a[i * m + i];
-    }
-    for i in (0..m).rev() {
-        b[i] = (b[i] - (i + 1..m).map(|k| a[k * m + i] * b[k]).sum::<f64>()) / a[i * m + i];
-    }
-    Some(b)
 }
 
 #[cfg(test)]

@@ -8,6 +8,7 @@
 
 use crate::stack::blur::gaussian_blur;
 use crate::stack::image::Plane;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 /// Blur of the first Gaussian layer of each octave (Lowe's value).
@@ -167,34 +168,17 @@ fn refine(d: &[Plane], x: usize, y: usize) -> Option<(f32, f32, f32, f32)> {
     if det <= 0.0 || tr * tr * EDGE_RATIO >= (EDGE_RATIO + 1.0).powi(2) * det {
         return None;
     }
-    let h = [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]];
-    let off = solve3(h, g.map(|v| -v))?;
+    let h = Matrix3::new(dxx, dxy, dxs, dxy, dyy, dys, dxs, dys, dss);
+    // (Near) singular: no extremum to place.
+    if h.determinant().abs() < 1e-12 {
+        return None;
+    }
+    let off = h.lu().solve(&-Vector3::from(g))?;
     if off.iter().any(|o| o.abs() > 0.6) {
         return None;
     }
     let value = v + 0.5 * (g[0] * off[0] + g[1] * off[1] + g[2] * off[2]);
     Some((off[0], off[1], off[2], value))
-}
-
-/// Cramer's rule; None when singular.
-fn solve3(m: [[f32; 3]; 3], b: [f32; 3]) -> Option<[f32; 3]> {
-    let det3 = |m: [[f32; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det3(m);
-    if d.abs() < 1e-12 {
-        return None;
-    }
-    let col = |c: usize| {
-        let mut r = m;
-        for i in 0..3 {
-            r[i][c] = b[i];
-        }
-        det3(r) / d
-    };
-    Some([col(0), col(1), col(2)])
 }
 
 /// The strongest keypoints, at most `max_count`, each grid cell capped at twice its fair share.

@@ -5,6 +5,7 @@
 //! fixed seed keeps registration reproducible run to run.
 
 use crate::stack::transform::Affine;
+use nalgebra::{Matrix3, Matrix3x2, RowVector2, Vector3};
 
 /// A correspondence: (x, y) in the first image, (u, v) in the second.
 pub type Pair = ((f64, f64), (f64, f64));
@@ -32,52 +33,27 @@ pub fn fit_affine(pairs: &[Pair], idx: &[usize]) -> Option<Affine> {
     let (mx, my) = idx.iter().fold((0.0, 0.0), |s, &i| {
         (s.0 + pairs[i].0 .0 / n, s.1 + pairs[i].0 .1 / n)
     });
-    let mut m = [[0.0f64; 3]; 3];
-    let mut bu = [0.0f64; 3];
-    let mut bv = [0.0f64; 3];
+    // Normal equations, one right-hand side per output coordinate.
+    let mut m = Matrix3::zeros();
+    let mut rhs = Matrix3x2::zeros();
     for &i in idx {
         let ((x, y), (u, v)) = pairs[i];
-        let r = [x - mx, y - my, 1.0];
-        for a in 0..3 {
-            for b in 0..3 {
-                m[a][b] += r[a] * r[b];
-            }
-            bu[a] += r[a] * u;
-            bv[a] += r[a] * v;
-        }
+        let r = Vector3::new(x - mx, y - my, 1.0);
+        m += r * r.transpose();
+        rhs += r * RowVector2::new(u, v);
     }
-    let [a, b, c] = solve3(m, bu)?;
-    let [d, e, f] = solve3(m, bv)?;
+    // Partial pivoting; a pivot this small against the largest entry means collinear points.
+    let lu = m.lu();
+    let scale = m.amax();
+    if lu.u().diagonal().iter().any(|p| p.abs() <= 1e-12 * scale) {
+        return None;
+    }
+    let s = lu.solve(&rhs)?;
+    let ([a, b, c], [d, e, f]) = (s.column(0).into(), s.column(1).into());
     Some(Affine([
         [a, b, c - a * mx - b * my],
         [d, e, f - d * mx - e * my],
     ]))
-}
-
-/// Gaussian elimination with partial pivoting; None when (near) singular.
-fn solve3(mut m: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
-    let scale = m.iter().flatten().fold(0.0f64, |s, v| s.max(v.abs()));
-    for c in 0..3 {
-        let p = (c..3).max_by(|&i, &j| m[i][c].abs().total_cmp(&m[j][c].abs()))?;
-        if m[p][c].abs() <= 1e-12 * scale {
-            return None;
-        }
-        m.swap(c, p);
-        b.swap(c, p);
-        for r in c + 1..3 {
-            let (pivot, f) = (m[c], m[r][c] / m[c][c]);
-            for (v, p) in m[r][c..].iter_mut().zip(&pivot[c..]) {
-                *v -= f * p;
-            }
-            b[r] -= f * b[c];
-        }
-    }
-    let mut x = [0.0; 3];
-    for r in (0..3).rev() {
-        let s: f64 = (r + 1..3).map(|k| m[r][k] * x[k]).sum();
-        x[r] = (b[r] - s) / m[r][r];
-    }
-    Some(x)
 }
 
 /// Whether the linear part is a plausible hand-held pose: near-conformal, modest scale.

@@ -13,6 +13,7 @@ use super::equalise::{self, Stack};
 use super::levels::{from_level, to_level, Levels};
 use crate::stack::image::Plane;
 use crate::stack::transform::Affine;
+use nalgebra::{SMatrix, SVector};
 use rayon::prelude::*;
 
 /// Parameters: 6 affine (about the level's centre, in pixels at the half-size), gain, offset.
@@ -489,7 +490,7 @@ fn gauss_newton(
             },
         );
     fit.correlation = ncc(&c);
-    let d = solve(h, b)?;
+    let d = solve(SMatrix::from(h), b.into())?;
     // The increment about the centre, in level pixels.
     let (cx, cy, hf) = (cx as f64, cy as f64, half as f64);
     let (a0, a1, a3, a4) = (d[0] / hf, d[1] / hf, d[3] / hf, d[4] / hf);
@@ -523,31 +524,20 @@ fn ncc(c: &[f64; 6]) -> f64 {
     }
 }
 
-/// Cholesky solve of the normal equations, upper triangle given; None if not positive definite.
-pub(super) fn solve<const N: usize>(h: [[f64; N]; N], b: [f64; N]) -> Option<[f64; N]> {
-    let mut l = [[0.0f64; N]; N];
-    for i in 0..N {
-        for j in 0..=i {
-            let s = h[j][i] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
-            if i == j {
-                if s <= 1e-12 * h[i][i].abs().max(1e-30) {
-                    return None;
-                }
-                l[i][i] = s.sqrt();
-            } else {
-                l[i][j] = s / l[j][j];
-            }
-        }
+/// Cholesky solve of the normal equations, their lower triangle given (the upper triangle of
+/// `h`'s rows, read as columns); None unless positive definite by a margin: a pivot below
+/// 1e-12 of its diagonal entry is rank deficiency that rounding kept from reaching zero.
+fn solve(h: SMatrix<f64, N, N>, b: SVector<f64, N>) -> Option<SVector<f64, N>> {
+    let chol = h.cholesky()?;
+    let pivots = chol.l_dirty().diagonal();
+    if pivots
+        .iter()
+        .zip(h.diagonal().iter())
+        .any(|(l, d)| l * l <= 1e-12 * d.abs().max(1e-30))
+    {
+        return None;
     }
-    let mut y = [0.0f64; N];
-    for i in 0..N {
-        y[i] = (b[i] - (0..i).map(|k| l[i][k] * y[k]).sum::<f64>()) / l[i][i];
-    }
-    let mut x = [0.0f64; N];
-    for i in (0..N).rev() {
-        x[i] = (y[i] - (i + 1..N).map(|k| l[k][i] * x[k]).sum::<f64>()) / l[i][i];
-    }
-    Some(x)
+    Some(chol.solve(&b))
 }
 
 #[cfg(test)]
