@@ -221,6 +221,9 @@ fn run_typed<T: Sample>(
         report_alignment(al, &a.frames);
     }
     if let Some(s) = &fused.spill {
+        if let Some(r) = &s.repaired {
+            eprintln!("  repair {r}");
+        }
         eprintln!("  spill  {s}");
     }
 

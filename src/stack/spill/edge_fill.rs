@@ -4,13 +4,15 @@
 use crate::stack::align::Coverage;
 use crate::stack::image::{Image, Sample};
 use crate::stack::morphology::window_max;
+#[cfg(doc)]
+use crate::stack::repair::depth_steps;
 use rayon::prelude::*;
 
 /// Full-resolution pixels from a depth step within which [`fill_near_objects`] fills.
 const FILL_REACH: usize = 6;
 
 /// Copies each near object's own pixels next to a depth step into the frames focused two or
-/// more planes behind it, where the labels and the colour refinement ([`refine`]) agree that
+/// more planes behind it, where the labels and the colours at the step ([`depth_steps::sides`]) agree that
 /// the object is there and within [`FILL_REACH`] of the step; returns how many pixels.
 ///
 /// The un-mixing cleans a far frame only outside the near object. Inside its edge the far frame

@@ -35,11 +35,11 @@ mod synthesis;
 mod tests;
 
 use super::align::Coverage;
-use super::blur::{downsample_area, gaussian_blur};
-use super::flat_regions::{self, Settled};
-use super::image::{Image, Plane, Sample, Tap};
-use super::morphology::{window_max, window_min};
+use super::blur::downsample_area;
+use super::image::{Image, Plane, Sample};
+use super::morphology::window_min;
 use super::order::Order;
+use super::repair::{depth_steps, flat_regions, Repaired};
 use super::{Progress, Stage};
 pub use blur_fit::Pair;
 use edge_fill::fill_near_objects;
@@ -58,16 +58,6 @@ const WORK_PIXELS: usize = 150_000;
 /// spilt, a faint rim of the object's colour around it (1 px: the 1600×1200 tripod's band
 /// +0.15 dB, the replay bundles' +0.10–0.11, no stack's PSNR lower).
 const GUARD: usize = 1;
-/// How far from a step the labels may have misplaced it, in full-resolution pixels.
-const RING: usize = 8;
-/// A label moves to the near object's frame only where the pixel is clearly the object's: its
-/// squared colour distance to the object's mean under this share of that to the background's
-/// (half the distance). Nearer than the background's alone moved labels on textured far
-/// surfaces whose colours happen to lie near the object's (the committed 4-plane stack's depth
-/// accuracy fell from 91.6 to 89.9 %; with this 90.9 %, PSNR unchanged).
-const RELABEL: f32 = 0.25;
-/// σ of the local mean colours [`refine`] compares, full-resolution pixels.
-const MEAN_SIGMA: f32 = 6.0;
 
 /// What the un-mixing did.
 #[derive(Clone, Debug, PartialEq)]
@@ -77,12 +67,11 @@ pub struct Unmixed {
     pub pairs: Vec<Pair>,
     /// Per frame, the pixels changed.
     pub changed: Vec<usize>,
-    /// Pixels whose label moved to a near object's frame (see [`refine`]).
-    pub relabelled: usize,
     /// Near objects' pixels copied into the frames focused behind them ([`fill_near_objects`]).
     pub filled: usize,
-    /// Flat regions given the frame that shows their outline crisp, first ([`flat_regions`]).
-    pub settled: Settled,
+    /// What the label repairs did, run first; `None` when they were not asked for or the order
+    /// was not told.
+    pub repaired: Option<Repaired>,
     /// Pixels in a frame.
     pub frame_pixels: usize,
     /// The occlusion edges did not tell which frames are nearer, so nothing was done.
@@ -98,15 +87,6 @@ impl std::fmt::Display for Unmixed {
                 "left in: the occlusion edges do not tell which frames are nearer (see `order`)"
             );
         }
-        if self.settled.regions > 0 {
-            let (n, px) = (self.settled.regions, self.settled.pixels);
-            let s = if n == 1 { "" } else { "s" };
-            write!(
-                f,
-                "{n} flat region{s} ({px} pixels) given the nearer frame that shows the outline \
-                 crisp; "
-            )?;
-        }
         let Some(light) = self.light else {
             return write!(f, "no depth step to take a halo out of");
         };
@@ -118,8 +98,7 @@ impl std::fmt::Display for Unmixed {
         write!(
             f,
             "{} near/far pairs ({} predicted), defocus σ {lo:.1}–{hi:.1} px, mixed in {} light; \
-             {:.1} % of the frames' pixels un-mixed, {} pixels moved to the near object's frame, \
-             {} filled into the frames behind it",
+             {:.1} % of the frames' pixels un-mixed, {} filled into the frames behind it",
             self.pairs.len(),
             self.pairs.iter().filter(|p| p.predicted).count(),
             match light {
@@ -127,7 +106,6 @@ impl std::fmt::Display for Unmixed {
                 Light::Display => "display",
             },
             100.0 * changed as f64 / all as f64,
-            self.relabelled,
             self.filled
         )
     }
@@ -135,8 +113,8 @@ impl std::fmt::Display for Unmixed {
 
 /// Bytes [`unmix`] holds besides the frames, for the memory plan: throughout, the reduced
 /// frames and a few full-size maps of one byte a pixel; while the near objects' extent is
-/// refined, every depth's local mean colours of its object and of what lies behind it
-/// ([`refine`]); later, the reduced frames' luma in both lights, the region masks and their
+/// found, every depth's local mean colours of its object and of what lies behind it
+/// ([`depth_steps::sides`]); later, the reduced frames' luma in both lights, the region masks and their
 /// interiors (a byte a pixel), then one far frame's spill with one σ's sums and their blurs, and
 /// the blurs kept for later far frames (no more planes than the luma took, see [`Blurs`]).
 /// (The refinement's means had been left out: a 25-frame 1.2 MP fuse peaked at 236 MiB against
@@ -159,13 +137,11 @@ fn reduction(width: usize, height: usize) -> usize {
 }
 
 /// Un-mixes every frame in place, given the label map, where the labelling found texture and
-/// the stack's focus order. Where the near side
-/// of a step is mislabelled (a farther frame taken where the near object is, which shows the
-/// background through the object's edge), the labels are moved to the near object's frame:
-/// first flat regions' ([`flat_regions`]), then each pixel's near a step. Reports its own stage,
-/// [`Stage::Spill`], a step for the flat regions and one per frame reduced, fitted (in each
-/// light) and un-mixed: its work grows with the frames and their depth steps, and a watchdog
-/// waiting on progress must see it move.
+/// the stack's focus order. With `repair`, the label repairs run first ([`super::repair`]): the
+/// labels of a near object's mislabelled edge move to its frame. Reports its own stage,
+/// [`Stage::Spill`], a step for each repair and one per frame reduced, fitted (in each light)
+/// and un-mixed: its work grows with the frames and their depth steps, and a watchdog waiting
+/// on progress must see it move.
 ///
 /// With an `Unknown` order it does nothing: the model is one of occlusion, and a stack whose
 /// occlusion edges tell no order shows none to take out. Un-mixing it on an assumed order fitted
@@ -179,6 +155,7 @@ pub fn unmix<T: Sample>(
     textured: &[bool],
     coverage: &[Coverage],
     order: Order,
+    repair: bool,
     progress: &dyn Progress,
 ) -> Unmixed {
     let n = frames.len();
@@ -186,9 +163,8 @@ pub fn unmix<T: Sample>(
         light: None,
         pairs: Vec::new(),
         changed: vec![0; n],
-        relabelled: 0,
         filled: 0,
-        settled: Settled::default(),
+        repaired: None,
         frame_pixels: frames.first().map_or(0, |f| f.pixels()),
         untold: order == Order::Unknown,
     };
@@ -197,11 +173,13 @@ pub fn unmix<T: Sample>(
     }
     let (w, h) = (frames[0].width, frames[0].height);
     debug_assert_eq!(labels.len(), w * h);
-    // Settle, reduce, refine, fit in two lights, un-mix: see `fit` and the loop below for the
-    // steps.
+    // Settle flat regions, reduce, find the steps' sides and relabel, fit in two lights, un-mix:
+    // see `fit` and the loop below for the steps.
     progress.stage(Stage::Spill, 4 * n + 2);
-    out.settled = flat_regions::settle(frames, coverage, labels, textured, &|f| {
-        order.depth_of(f, n)
+    let settled = repair.then(|| {
+        flat_regions::settle(frames, coverage, labels, textured, &|f| {
+            order.depth_of(f, n)
+        })
     });
     progress.advance(1);
     // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
@@ -216,13 +194,20 @@ pub fn unmix<T: Sample>(
         })
         .collect();
     let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
-    let refined = refine(frames, coverage, &frame_of, &mut depth, &reduced, factor);
-    out.relabelled = refined.relabelled;
-    progress.advance(1);
-    for (l, &d) in labels.iter_mut().zip(&depth) {
-        *l = frame_of(d as usize) as u8;
+    let sides = depth_steps::sides(frames, coverage, &frame_of, &depth, &reduced, factor);
+    if let Some(settled) = settled {
+        let relabelled = depth_steps::relabel(&mut depth, &sides);
+        for (l, &d) in labels.iter_mut().zip(&depth) {
+            *l = frame_of(d as usize) as u8;
+        }
+        out.repaired = Some(Repaired {
+            settled,
+            relabelled,
+        });
     }
-    let masks = region_masks(&refined.objects, w, h, n, factor);
+    progress.advance(1);
+    let objects = sides.objects;
+    let masks = region_masks(&objects, w, h, n, factor);
     // The fit needs only luma, in both lights; the colour is decoded to linear light only when
     // that is the light chosen, so one light's reduced frames are held, never both.
     let (display, linear): (Vec<Plane>, Vec<Plane>) = reduced
@@ -249,7 +234,7 @@ pub fn unmix<T: Sample>(
         });
     }
     out.light = Some(light);
-    let nearest = window_min(&refined.objects, w, h, GUARD);
+    let nearest = window_min(&objects, w, h, GUARD);
     let mut blurs = Blurs::new(&pairs, n, mixed[0].len());
     for l in 0..n {
         let groups = blurs.of(l, &mixed, &masks, factor);
@@ -260,7 +245,7 @@ pub fn unmix<T: Sample>(
         }
         progress.advance(1);
     }
-    out.filled = fill_near_objects(frames, &depth, &refined.objects, coverage, &frame_of);
+    out.filled = fill_near_objects(frames, &depth, &objects, coverage, &frame_of);
     out.pairs = pairs
         .into_iter()
         .map(|p| Pair {
@@ -303,152 +288,6 @@ fn region_masks(depth: &[u8], w: usize, h: usize, n: usize, factor: usize) -> Ve
             Plane::from_vec(rw, rh, 1, data)
         })
         .collect()
-}
-
-/// Per reduced pixel, the nearest and the farthest depth rank in its `factor`×`factor` block of
-/// `depth`: which depths cover a block wholly, for every depth at once. (Summing each depth's
-/// region masks farther than it, per depth, grew with the square of the frames: flats 25 with
-/// 16 patches took 352 ms in the spill stage so, 318 ms this way.)
-fn block_extremes(depth: &[u8], w: usize, h: usize, factor: usize) -> (Vec<u8>, Vec<u8>) {
-    let rw = w.div_ceil(factor);
-    let (lo, hi): (Vec<Vec<u8>>, Vec<Vec<u8>>) = (0..h.div_ceil(factor))
-        .into_par_iter()
-        .map(|ry| {
-            let (mut lo, mut hi) = (vec![u8::MAX; rw], vec![0u8; rw]);
-            for y in ry * factor..((ry + 1) * factor).min(h) {
-                for (x, &d) in depth[y * w..][..w].iter().enumerate() {
-                    let c = x / factor;
-                    (lo[c], hi[c]) = (lo[c].min(d), hi[c].max(d));
-                }
-            }
-            (lo, hi)
-        })
-        .unzip();
-    (lo.concat(), hi.concat())
-}
-
-/// The near objects' true extent next to each depth step.
-struct Refined {
-    /// Per pixel, the depth rank of the object seen there.
-    objects: Vec<u8>,
-    /// Pixels whose label moved to the near object's frame.
-    relabelled: usize,
-}
-
-/// Within [`RING`] pixels of a step from depth `k` to `k + 2` or farther, decides each pixel
-/// by the near frame's own colours: nearer the near object's local mean colour (over where it
-/// is labelled, away from the ring) than the background's (over where depth `k + 2` or farther
-/// is labelled), it is the near object; clearly nearer ([`RELABEL`]) and labelled farther, its
-/// label moves to the near frame (when that frame covers it). Labels are taken as they are
-/// elsewhere. In the near
-/// frame the object is sharp and the background behind it blurred, so the two colours separate
-/// where the label map, which follows contrast, does not.
-fn refine<T: Sample>(
-    frames: &[Image<T>],
-    coverage: &[Coverage],
-    frame_of: &(dyn Fn(usize) -> usize + Sync),
-    depth: &mut [u8],
-    reduced: &[Vec<Plane>],
-    factor: usize,
-) -> Refined {
-    let (w, h, ch) = (frames[0].width, frames[0].height, frames[0].channels);
-    let n = reduced.len();
-    let (rw, rh) = (w.div_ceil(factor), h.div_ceil(factor));
-    let (lo, hi) = block_extremes(depth, w, h, factor);
-    let nearest = window_min(depth, w, h, RING);
-    let farthest = window_max(depth, w, h, RING);
-    // Reduced pixels whose whole block is of one depth, or of some depth farther than one.
-    let wholly = |f: &dyn Fn(usize) -> bool| -> Plane {
-        let data = (0..rw * rh).map(|i| f32::from(u8::from(f(i)))).collect();
-        Plane::from_vec(rw, rh, 1, data)
-    };
-    let s = MEAN_SIGMA / factor as f32;
-    // Per depth k: the local mean colour of its object and of what lies behind it, in frame k.
-    let means: Vec<Option<[Vec<Plane>; 2]>> = (0..n)
-        .into_par_iter()
-        .map(|k| {
-            if k + 2 >= n {
-                return None;
-            }
-            let inside = wholly(&|i| lo[i] as usize == k && hi[i] as usize == k);
-            let behind = wholly(&|i| lo[i] as usize >= k + 2);
-            Some([inside, behind].map(|wgt| {
-                let norm = gaussian_blur(&wgt, s);
-                reduced[k]
-                    .iter()
-                    .map(|c| {
-                        let data = c.data.iter().zip(&wgt.data).map(|(v, m)| v * m).collect();
-                        let mut mean =
-                            gaussian_blur(&Plane::from_vec(wgt.width, wgt.height, 1, data), s);
-                        for (v, &z) in mean.data.iter_mut().zip(&norm.data) {
-                            *v = if z > 1e-3 { *v / z } else { f32::NAN };
-                        }
-                        mean
-                    })
-                    .collect()
-            }))
-        })
-        .collect();
-    let cols = taps(w, factor, rw);
-    let mut objects = depth.to_vec();
-    let relabelled = depth
-        .par_chunks_mut(w)
-        .zip(objects.par_chunks_mut(w))
-        .enumerate()
-        .map(|(y, (drow, orow))| {
-            let ty = tap(y, factor, rh);
-            let mut moved = 0;
-            for x in 0..w {
-                let i = y * w + x;
-                let k = nearest[i] as usize;
-                if farthest[i] as usize >= k + 2 {
-                    let Some([inside, behind]) = &means[k] else {
-                        continue;
-                    };
-                    // Never a label, nor a colour, from a frame that does not reach here.
-                    if !coverage[frame_of(k)].covers(x, y) {
-                        continue;
-                    }
-                    let px = &frames[frame_of(k)].data[i * ch..][..ch];
-                    let (mut din, mut dout) = (0.0, 0.0);
-                    for (c, v) in px.iter().enumerate() {
-                        let v = v.to_f32() / T::MAX;
-                        din += (v - inside[c].sample_taps(cols[x], ty)).powi(2);
-                        dout += (v - behind[c].sample_taps(cols[x], ty)).powi(2);
-                    }
-                    if !(din.is_finite() && dout.is_finite()) {
-                        continue;
-                    }
-                    if din < dout {
-                        orow[x] = k as u8;
-                        if drow[x] as usize >= k + 2 && din < RELABEL * dout {
-                            drow[x] = k as u8;
-                            moved += 1;
-                        }
-                    } else if drow[x] as usize == k {
-                        orow[x] = farthest[i];
-                    }
-                }
-            }
-            moved
-        })
-        .sum();
-    Refined {
-        objects,
-        relabelled,
-    }
-}
-
-/// The bilinear taps of full-resolution pixel `i`'s centre on an axis reduced by `factor` to
-/// `reduced` pixels.
-fn tap(i: usize, factor: usize, reduced: usize) -> Tap {
-    Tap::new((i as f32 + 0.5) * (1.0 / factor as f32) - 0.5, reduced)
-}
-
-/// [`tap`] of each of `full` pixels: a frame's columns read the same taps on every row and in
-/// every plane.
-fn taps(full: usize, factor: usize, reduced: usize) -> Vec<Tap> {
-    (0..full).map(|x| tap(x, factor, reduced)).collect()
 }
 
 fn add(acc: &mut Plane, b: &Plane) {

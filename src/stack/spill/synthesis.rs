@@ -1,11 +1,11 @@
 //! The spill synthesis: each far frame's spill `G∗(α·C)` and coverage `G∗α` built from the near
 //! objects and their fitted blurs, and the un-mixing of the frame by it.
 
+use super::add;
 use super::blur_fit::Pair;
 use super::light::Light;
-use super::{add, tap, taps};
 use crate::stack::blur::gaussian_blur;
-use crate::stack::image::{Image, Plane, Sample};
+use crate::stack::image::{Image, Plane, Sample, Tap};
 use rayon::prelude::*;
 use std::rc::Rc;
 
@@ -169,14 +169,14 @@ impl Spill {
                 spilt(x, y) || spilt(x + 1, y) || spilt(x, y + 1) || spilt(x + 1, y + 1)
             })
             .collect();
-        let cols = taps(w, self.factor, rw);
+        let cols = Tap::all_reduced(w, self.factor, rw);
         let (mix, store) = (light.mixing(), light.storing());
         frame
             .data
             .par_chunks_mut(w * ch)
             .enumerate()
             .map(|(y, row)| {
-                let ty = tap(y, self.factor, rh);
+                let ty = Tap::reduced(y, self.factor, rh);
                 let active = &active[ty.cell() * rw..][..rw];
                 let mut changed = 0;
                 for ((x, px), &tx) in row.chunks_exact_mut(ch).enumerate().zip(&cols) {

@@ -4,6 +4,7 @@ use super::blur_fit::{monotone, with_predicted, Pair};
 use super::light::{fit, luma, PROBES};
 use super::synthesis::{Blurred, Blurs, Group, Spill};
 use super::*;
+use crate::stack::blur::gaussian_blur;
 use crate::stack::NoProgress;
 use std::rc::Rc;
 use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
@@ -102,6 +103,7 @@ fn unmix_covered(
         &[true; SIZE * SIZE],
         coverage,
         order,
+        true,
         &NoProgress,
     )
 }
@@ -303,6 +305,7 @@ fn the_spill_removal_reports_its_progress_to_the_end() {
         &[true; SIZE * SIZE],
         &full(3),
         Order::NearestFirst,
+        true,
         &steps,
     );
     assert!(!out.pairs.is_empty());
@@ -572,9 +575,44 @@ fn without_a_step_two_planes_deep_nothing_changes() {
             &[true; SIZE * SIZE],
             &cover,
             Order::NearestFirst,
+            true,
             &NoProgress,
         );
         assert_eq!((out.light, out.changed.iter().sum::<usize>()), (None, 0));
         assert_eq!((f, l), (before, labels_before));
     }
+}
+
+#[test]
+fn without_the_repairs_the_labels_are_left_as_they_are() {
+    let (frames, _) = scene(Light::Linear);
+    let run = |repair| {
+        let (mut f, mut l) = (frames.clone(), labels());
+        let textured = [true; SIZE * SIZE];
+        let out = unmix(
+            &mut f,
+            &mut l,
+            &textured,
+            &full(3),
+            Order::NearestFirst,
+            repair,
+            &NoProgress,
+        );
+        (out, l)
+    };
+    let (kept, kept_labels) = run(false);
+    assert_eq!(kept.repaired, None);
+    assert_eq!(kept_labels, labels());
+    let (repaired, repaired_labels) = run(true);
+    let moved = repaired
+        .repaired
+        .expect("the repairs were asked for")
+        .relabelled;
+    let changed = repaired_labels
+        .iter()
+        .zip(&labels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(moved > 0);
+    assert_eq!(moved, changed);
 }

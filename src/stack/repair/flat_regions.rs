@@ -24,10 +24,10 @@
 //!   occluder's frame; without this test a strip of `bundles/calm`'s cloudy background beside a
 //!   near star went to the star's frame and lost its soft texture.
 
-use super::align::Coverage;
-use super::image::{Image, Sample};
-use super::morphology::{dilate, distance};
-use super::order::MIN_STEP;
+use crate::stack::align::Coverage;
+use crate::stack::image::{Image, Sample};
+use crate::stack::morphology::{dilate, distance};
+use crate::stack::order::MIN_STEP;
 use rayon::prelude::*;
 use std::ops::Range;
 
