@@ -5,8 +5,7 @@
 use focusd::backend::replay::{self, Bundle, BundleWriter};
 use focusd::capture::sweep::{sweep, OnExhausted, Sweep, SweepConfig, Unmonitored};
 use focusd::capture::{CaptureError, ImuSample, Sensor};
-use focusd::stack::image::Image;
-use focusd::stack::metrics::psnr;
+use focusd::stack::{psnr, Image};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -8,7 +8,7 @@ use common::{
     bundle_dir, busctl, capture_and_wait, connect, dbus_error, load, outcome, runtime, subscribe,
     Bus, Daemon,
 };
-use focusd::stack::metrics::psnr;
+use focusd::stack::psnr;
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
 use std::process::Command;

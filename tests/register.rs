@@ -4,15 +4,11 @@ use focusd::imageio::{load, Decoded};
 use focusd::sim::render::{render_scene, true_positions};
 use focusd::sim::scene::Scene;
 use focusd::sim::{render, SimParams};
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Plane;
-use focusd::stack::metrics::psnr;
-use focusd::stack::params::FuseParams;
-use focusd::stack::register::{
-    register, register_with, Placement, RegisterError, RegisterParams, Registration,
+use focusd::stack::internal::{register, register_with, Plane, Warp};
+use focusd::stack::{
+    fuse, psnr, Affine, FuseParams, NoProgress, Placement, Progress, RegisterError, RegisterParams,
+    Registration, Stage, Transforms,
 };
-use focusd::stack::transform::{Affine, Transforms, Warp};
-use focusd::stack::{NoProgress, Progress, Stage};
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 

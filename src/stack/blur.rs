@@ -63,8 +63,10 @@ pub fn gaussian_blur_channels(img: &Plane, sigma: f32) -> Plane {
     Plane::from_planes(&planes)
 }
 
-/// Convolves a single-channel plane with a symmetric odd-length kernel along x then y.
-pub fn convolve_separable(src: &Plane, k: &[f32]) -> Plane {
+/// Convolves a single-channel plane with a symmetric odd-length kernel along x then y: the
+/// plain convolution the tests check the streamed blur's kernel against.
+#[cfg(test)]
+fn convolve_separable(src: &Plane, k: &[f32]) -> Plane {
     debug_assert_eq!(src.channels, 1);
     debug_assert!(k.len() % 2 == 1 && k.iter().eq(k.iter().rev()));
     let (w, h) = (src.width, src.height);

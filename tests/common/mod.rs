@@ -2,7 +2,7 @@
 #![allow(dead_code)] // each test crate uses a part
 
 use focusd::service::proxy::{FailedStream, FinishedStream, Focusd1Proxy};
-use focusd::stack::image::Image;
+use focusd::stack::Image;
 use futures_util::StreamExt;
 use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixDatagram;
