@@ -32,9 +32,7 @@ pub(super) fn margin(sigma: f32, factor: usize) -> u8 {
 /// nearer object is blurred at least as much in the same farther frame, and an object at least
 /// as much in a frame focused farther, so σ(k, l) ≥ σ(k + 1, l) and σ(k, l) ≥ σ(k, l − 1). A
 /// fit that breaks this fell short, not its neighbour: a thin near object leaves its deeper
-/// blurs too little interior, and the fit settles on the largest σ that still has some (the
-/// 1600×1200 tripod's ruler, 4 px in every frame behind it against a true 4–9 px; raised,
-/// 4–9.5 px, its band +0.07 dB).
+/// blurs too little interior, and the fit settles on the largest σ that still has some.
 pub(super) fn monotone(mut pairs: Vec<Pair>, n: usize) -> Vec<Pair> {
     let mut sigma = vec![None; n * n];
     // Bounds come from a larger `near` and a smaller `far`: visit those first.
@@ -157,9 +155,8 @@ pub(super) fn fit_near(
     let mut interiors: Vec<Option<Interior>> = (0..=u8::MAX).map(|_| None).collect();
     // Each far frame's residual at `sigma`, relative to its variance over the interior: deeper
     // than 3σ, or where a small object has too little of that, than 1.5σ (the background's
-    // light then enters the fit's edge a little). Without that second depth the main job's
-    // nearest objects, 60-100 px across, were fitted only up to σ 6 px and their spill into
-    // the frames focused 2-3 planes behind (σ 4-6) was never un-mixed.
+    // light then enters the fit's edge a little): without that second depth a small near
+    // object's larger blurs would never be fitted, nor its spill un-mixed.
     let mut residuals = |sigma: f32| -> Option<Vec<f64>> {
         let m = [margin(sigma, factor), margin(0.5 * sigma, factor)]
             .into_iter()

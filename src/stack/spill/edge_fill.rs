@@ -18,14 +18,11 @@ const FILL_REACH: usize = 6;
 /// The un-mixing cleans a far frame only outside the near object. Inside its edge the far frame
 /// still shows the object defocused with the background through it, and the compose's coarser
 /// bands, shared by the pixels on both sides of the step, took that texture over the object's
-/// own where it had more contrast: the main job's blue polygon showed the background's stripes
-/// over its first 5 px (1.5–5.5 px inside: 22.3–24.4 dB, its own frame 29.0–30.1). Filled, a
-/// far frame shows at the step what the output wants on both sides of it, so whichever frame a
-/// band comes from, the edge is the object's (those pixels 25.2–27.6 dB). Only near the step:
-/// deeper in, a far frame's bands can be the better ones, where a slanted object lies between
-/// the planes its label and the far frame are focused on (filling every such pixel however far
-/// from the step lost 0.06 dB on the 1600×1200 tripod; within 3 or 6 px of it the tripod gained
-/// 0.04 or 0.02). Pixels the colour calls background are left, so a label that overreaches the
+/// own where it had more contrast: the background's texture showed over the object's first
+/// pixels. Filled, a far frame shows at the step what the output wants on both sides of it, so
+/// whichever frame a band comes from, the edge is the object's. Only near the step: deeper in, a
+/// far frame's bands can be the better ones, where a slanted object lies between the planes its
+/// label and the far frame are focused on. Pixels the colour calls background are left, so a label that overreaches the
 /// object does not carry the near frame's blurred background into the far frames.
 pub(super) fn fill_near_objects<T: Sample>(
     frames: &mut [Image<T>],
@@ -37,7 +34,7 @@ pub(super) fn fill_near_objects<T: Sample>(
     let (w, h, ch) = (frames[0].width, frames[0].height, frames[0].channels);
     // Only where every frame reaches: near the border a label can be the reference's because
     // the frame the labelling chose does not cover the pixel, which says nothing of depth
-    // (filled there, the main job's right border took the reference's blurred checkerboard).
+    // (filled there, a border would take the reference's blurred background).
     let everywhere = Coverage::intersection(coverage);
     // Per pixel, its object's depth rank + 1 where it is filled, else 0.
     let mut fill = window_max(depth, w, h, FILL_REACH);

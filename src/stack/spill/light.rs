@@ -17,9 +17,8 @@ pub enum Light {
 
 impl Light {
     /// Takes a stored (sRGB-encoded) value into this light. Linear light by table
-    /// ([`srgb::tabulated`]): a `powf` for every channel of the reduced frames and, twice, of
-    /// every pixel un-mixed was a tenth of the stage on the linear-light stacks. The table is
-    /// fetched once here, for a whole pass, rather than once a value.
+    /// ([`srgb::tabulated`]) rather than a `powf` for every channel of every pixel un-mixed; the
+    /// table is fetched once here, for a whole pass, rather than once a value.
     pub(super) fn mixing(self) -> impl Fn(f32) -> f32 + Copy + Sync {
         let curve = (self == Light::Linear).then(|| &srgb::tabulated().decode);
         move |v| match curve {
@@ -52,12 +51,9 @@ pub(super) fn luma(planes: &[Plane], light: Light) -> Plane {
 
 /// Near depths fitted in both lights before the rest: the [`PROBES`] with the most interior.
 /// Where their fits tell the lights apart by more than [`CLEAR`] (mean log residual), the other
-/// depths are fitted in the better light alone; otherwise in both, and all of them decide. The
-/// fit in two lights was a quarter of the spill stage (smooth 10 × 1.2 MP, 45 of 185 ms). On
-/// the benchmark's and bench-quality's stacks the probes' means differ by 2.2–3.8 where the
-/// defocus was mixed in display values, by 1.0–1.1 where in linear light (either way the light
-/// all pairs choose), and by 0.31 on noisy 10 × 1.2 MP (all pairs: 0.33), where they do not
-/// decide.
+/// depths are fitted in the better light alone; otherwise in both, and all of them decide: the
+/// fit in two lights is a large share of the spill stage, and where the probes tell the lights
+/// apart clearly, all pairs choose the same light.
 pub(super) const PROBES: usize = 2;
 const CLEAR: f64 = 0.75;
 

@@ -50,13 +50,11 @@ use synthesis::{Blurs, Spill};
 
 /// Pixels of the reduced working resolution, at most: enough to fit blurs of 1 px and more.
 /// A small near object whose deep blur in the farthest frames cannot be fitted at this size
-/// gets it from the focal axis instead ([`focal_axis`]), which is what working on the 0.17 MP
-/// replay bundles whole (200k) once gained, at four times the work.
+/// gets it from the focal axis instead ([`super::focal_axis`]).
 const WORK_PIXELS: usize = 150_000;
 /// Full-resolution pixels next to a nearer region that keep the frame as it is: the pixel at
-/// the object's edge, whose colour is the object's own. 2 px also kept the second pixel out
-/// spilt, a faint rim of the object's colour around it (1 px: the 1600×1200 tripod's band
-/// +0.15 dB, the replay bundles' +0.10–0.11, no stack's PSNR lower).
+/// the object's edge, whose colour is the object's own (a wider guard leaves a faint rim of the
+/// object's colour spilt around it).
 const GUARD: usize = 1;
 
 /// What the un-mixing did.
@@ -117,8 +115,6 @@ impl std::fmt::Display for Unmixed {
 /// ([`depth_steps::sides`]); later, the reduced frames' luma in both lights, the region masks and their
 /// interiors (a byte a pixel), then one far frame's spill with one σ's sums and their blurs, and
 /// the blurs kept for later far frames (no more planes than the luma took, see [`Blurs`]).
-/// (The refinement's means had been left out: a 25-frame 1.2 MP fuse peaked at 236 MiB against
-/// a plan of 209.)
 pub fn working_bytes(frames: usize, width: usize, height: usize, channels: usize) -> usize {
     let f = reduction(width, height);
     let reduced = width.div_ceil(f) * height.div_ceil(f);
@@ -144,11 +140,9 @@ fn reduction(width: usize, height: usize) -> usize {
 /// on progress must see it move.
 ///
 /// With an `Unknown` order it does nothing: the model is one of occlusion, and a stack whose
-/// occlusion edges tell no order shows none to take out. Un-mixing it on an assumed order fitted
-/// whatever its label boundaries happened to be (amber_macro, a real stack with 52–57 % of its
-/// edges' contrast for nearest first: σ that follow no focal axis and swing from 1.5–6.5 to
-/// 6.5–10.5 px with small changes of the labels) and left dark blotches where the fit did not
-/// hold; the flats stacks, patches without any occlusion, were un-mixed on 3–8 % of their pixels.
+/// occlusion edges tell no order shows none to take out. Un-mixed on an assumed order, the fit
+/// follows whatever the label boundaries happen to be (σ that follow no focal axis and swing
+/// with small changes of the labels) and leaves dark blotches where it does not hold.
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],

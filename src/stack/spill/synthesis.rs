@@ -63,9 +63,7 @@ impl Blurred {
 
 /// Each far frame's groups, blurred once each: the same near objects are often blurred alike
 /// in several far frames (where the fit's σ plateaus, and wherever the focal axis predicts the
-/// largest σ), so a group's blur is kept from its first far frame to its last. Flats 25 with 16
-/// patches: 92 groups, 29 blurs; smooth 10 × 1.2 MP: 27 and 20 (6 and 3 kept at once). What
-/// is kept stays within the planes the fit's luma in both lights took before (the memory
+/// largest σ), so a group's blur is kept from its first far frame to its last. What is kept stays within the planes the fit's luma in both lights took before (the memory
 /// plan's `fit` term, [`working_bytes`]): at most `limit` blurs; beyond, a blur is made again.
 pub(super) struct Blurs {
     /// Per far frame, its groups by σ.

@@ -314,7 +314,7 @@ fn the_spill_removal_reports_its_progress_to_the_end() {
     assert_eq!(steps.done.into_inner(), 14);
 }
 
-/// The main job's nearest object is fitted into the frames two and three planes behind it
+/// A small near object is fitted into the frames two and three planes behind it
 /// but is too small for the two farthest: those pairs are added with the σ the other
 /// pairs' focal axis gives (2 px a plane here); a near depth with nothing fitted gets none.
 #[test]
@@ -346,7 +346,7 @@ fn the_pairs_too_small_to_fit_are_predicted_from_the_others() {
     assert_eq!(added, [(0, 4, 8.0), (0, 5, 10.0)]);
 }
 
-/// The tripod's ruler: fitted at 4 px in every frame behind it, while the object behind
+/// A thin near object: fitted at 4 px in every frame behind it, while the object behind
 /// it (depth 1) is blurred more in the same frames. Each σ is raised to its bound; pairs
 /// already in order are kept.
 #[test]
