@@ -18,7 +18,7 @@ pub struct Pair {
     pub far: u8,
     /// σ of the Gaussian, in full-resolution pixels.
     pub sigma: f32,
-    /// Predicted from the other pairs ([`with_predicted`]), not fitted.
+    /// Predicted from the other pairs (`with_predicted`), not fitted.
     pub predicted: bool,
 }
 

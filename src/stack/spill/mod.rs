@@ -65,7 +65,7 @@ pub struct Unmixed {
     pub pairs: Vec<Pair>,
     /// Per frame, the pixels changed.
     pub changed: Vec<usize>,
-    /// Near objects' pixels copied into the frames focused behind them ([`fill_near_objects`]).
+    /// Near objects' pixels copied into the frames focused behind them (`edge_fill`).
     pub filled: usize,
     /// What the label repairs did, run first; `None` when they were not asked for or the order
     /// was not told.
