@@ -3,10 +3,7 @@
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use focusd::sim::{render, SimParams};
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Image;
-use focusd::stack::params::{FuseParams, Method};
-use focusd::stack::NoProgress;
+use focusd::stack::{fuse, FuseParams, Image, Method, NoProgress};
 use std::time::Duration;
 
 fn stack(width: usize, height: usize, planes: usize, handheld: bool) -> Vec<Image<u8>> {

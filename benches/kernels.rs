@@ -5,12 +5,11 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use focusd::develop::raw::{unpack, Packing};
 use focusd::develop::{BayerOrder, Developer, Mosaic, IDENTITY};
-use focusd::stack::align::{warp_frame_into, Exposure};
-use focusd::stack::blur::gaussian_blur;
-use focusd::stack::focus::{focus_amplitude, FocusParams};
-use focusd::stack::image::{Image, Plane};
-use focusd::stack::pyramid::{collapse, laplacian_pyramid, levels_for};
-use focusd::stack::transform::{Affine, OffsetField, Warp};
+use focusd::stack::internal::{
+    collapse, focus_amplitude, gaussian_blur, laplacian_pyramid, levels_for, warp_frame_into,
+    Plane, Warp,
+};
+use focusd::stack::{Affine, Exposure, FocusParams, Image, OffsetField};
 use std::hint::black_box;
 
 /// Deterministic texture with edges and noise, so no kernel sees a flat (cache-friendly) input.

@@ -4,9 +4,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use focusd::sim::flats::{flats, FlatsParams};
-use focusd::stack::align::Coverage;
-use focusd::stack::graphcut::{label_stack, GraphCutParams};
-use focusd::stack::NoProgress;
+use focusd::stack::internal::label_stack;
+use focusd::stack::{Coverage, GraphCutParams, NoProgress};
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -7,7 +7,7 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
-use focusd::stack::maxflow::GridMaxflow;
+use focusd::stack::internal::GridMaxflow;
 
 /// Capacities of a two-label segmentation of a noisy image, computed once so the benchmark does
 /// not time `exp`.

@@ -3,8 +3,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use focusd::sim::{render, SimParams};
-use focusd::stack::image::Plane;
-use focusd::stack::register::{register, RegisterParams};
+use focusd::stack::internal::{register, Plane};
+use focusd::stack::RegisterParams;
 use std::hint::black_box;
 use std::time::Duration;
 

@@ -8,9 +8,8 @@
 use anyhow::{bail, Result};
 use focusd::files::imageio::load_rgb8;
 use focusd::files::outputs::save_image;
-use focusd::stack::fuse::fuse;
-use focusd::stack::params::{middle_frame, FuseParams};
-use focusd::stack::NoProgress;
+
+use focusd::stack::{fuse, middle_frame, FuseParams, NoProgress};
 use std::path::PathBuf;
 
 fn main() -> Result<()> {

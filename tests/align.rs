@@ -1,14 +1,8 @@
 //! Fusion of hand-held stacks (registration, exposure, coverage, crop) against ground truth.
 
 use focusd::sim::{render, SimParams, SimStack};
-use focusd::stack::align::{warp_frame, Coverage, Exposure};
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::{Image, Plane};
-use focusd::stack::metrics::psnr;
-use focusd::stack::params::FuseParams;
-use focusd::stack::register::Placement;
-use focusd::stack::transform::Warp;
-use focusd::stack::NoProgress;
+use focusd::stack::internal::{warp_frame, Plane, Warp};
+use focusd::stack::{fuse, psnr, Coverage, Exposure, FuseParams, Image, NoProgress, Placement};
 
 /// A hand-held stack at the limits focusd is built for: shift up to 3% of the width, roll up to 1.5°,
 /// breathing ±1%, gain ±5%, white balance ±3%, a pixel of parallax.

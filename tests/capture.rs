@@ -5,7 +5,7 @@
 use focusd::backend::replay::{self, Bundle, BundleWriter};
 use focusd::capture::sweep::{sweep, OnExhausted, Sweep, SweepConfig, Unmonitored};
 use focusd::capture::{CaptureError, ImuSample, Sensor};
-use focusd::stack::metrics::psnr;
+use focusd::stack::psnr;
 use std::path::Path;
 use std::process::Command;
 

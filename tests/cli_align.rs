@@ -1,7 +1,7 @@
 //! `focusd fuse` on the committed hand-held stack: saved transforms against the true ones,
 //! `--crop`, and an unrelated frame refused by name.
 
-use focusd::stack::transform::Transforms;
+use focusd::stack::Transforms;
 use std::path::PathBuf;
 use std::process::{Command, Output};
 

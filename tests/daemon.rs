@@ -9,7 +9,7 @@ use common::daemon::{
 };
 use common::stacks::{bundle_dir, load};
 use common::system::is_root;
-use focusd::stack::metrics::psnr;
+use focusd::stack::psnr;
 use futures_util::StreamExt;
 use std::path::{Path, PathBuf};
 use std::process::Command;

@@ -19,12 +19,8 @@
 
 use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::sim::{render, SimParams};
-use focusd::stack::blur::gaussian_blur_channels;
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Image;
-use focusd::stack::metrics::psnr;
-use focusd::stack::params::FuseParams;
-use focusd::stack::NoProgress;
+use focusd::stack::internal::gaussian_blur_channels;
+use focusd::stack::{fuse, psnr, FuseParams, Image, NoProgress};
 
 /// A simulated stack's frames as mosaics, the same frames in RGB, and the truth; all through a
 /// Gaussian lens blur of `sigma` px (none at 0) applied in linear light.

@@ -4,12 +4,8 @@
 
 use focusd::sim::flats::{flats, FlatsParams};
 use focusd::sim::{render, SimParams};
-use focusd::stack::blur::gaussian_blur_channels;
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Image;
-use focusd::stack::order::{Order, OrderEvidence};
-use focusd::stack::params::{middle_frame, FuseParams};
-use focusd::stack::NoProgress;
+use focusd::stack::internal::gaussian_blur_channels;
+use focusd::stack::{fuse, middle_frame, FuseParams, Image, NoProgress, Order, OrderEvidence};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

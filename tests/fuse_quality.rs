@@ -1,12 +1,8 @@
 //! Fusion quality against ground truth on the committed aligned synthetic stacks.
 
 use focusd::files::imageio::{load, Decoded};
-use focusd::stack::focus::{focus_amplitude, FocusParams, AMP_SCALE};
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Image;
-use focusd::stack::metrics::psnr;
-use focusd::stack::params::{FuseParams, Method};
-use focusd::stack::NoProgress;
+use focusd::stack::internal::{focus_amplitude, AMP_SCALE};
+use focusd::stack::{fuse, psnr, FocusParams, FuseParams, Image, Method, NoProgress};
 use std::path::Path;
 
 fn load_u8(p: &Path) -> Image<u8> {

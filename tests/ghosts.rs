@@ -2,9 +2,8 @@
 //! own content, flags a doubled one, and finds each frame's global pose by itself.
 
 use focusd::sim::{render, SimParams, SimStack};
-use focusd::stack::ghosts::{check, SEARCH, WIDTH};
-use focusd::stack::image::Image;
-use focusd::stack::transform::Affine;
+use focusd::stack::internal::ghosts::{check, SEARCH, WIDTH};
+use focusd::stack::{Affine, Image};
 
 fn parallax_stack() -> SimStack {
     render(&SimParams {

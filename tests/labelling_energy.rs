@@ -3,9 +3,8 @@
 //! expansion's, which offers every frame everywhere: energy within 1 %.
 
 use focusd::sim::flats::{flats, FlatsParams};
-use focusd::stack::align::Coverage;
-use focusd::stack::graphcut::{label_stack, labelling_energy, GraphCutParams};
-use focusd::stack::NoProgress;
+use focusd::stack::internal::{label_stack, labelling_energy};
+use focusd::stack::{Coverage, GraphCutParams, NoProgress};
 
 #[test]
 fn candidate_labelling_is_within_one_percent_of_exhaustive_on_flats() {

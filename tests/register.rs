@@ -2,15 +2,11 @@
 
 use focusd::files::imageio::{load, Decoded};
 use focusd::sim::{render, SimParams};
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Plane;
-use focusd::stack::metrics::psnr;
-use focusd::stack::params::FuseParams;
-use focusd::stack::register::{
-    register, register_with, Placement, RegisterError, RegisterParams, Registration,
+use focusd::stack::internal::{register, register_with, Plane};
+use focusd::stack::{
+    fuse, psnr, Affine, FuseParams, NoProgress, Placement, Progress, RegisterError, RegisterParams,
+    Registration, Stage, Transforms,
 };
-use focusd::stack::transform::{Affine, Transforms};
-use focusd::stack::{NoProgress, Progress, Stage};
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 

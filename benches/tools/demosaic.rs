@@ -21,12 +21,8 @@ use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::files::imageio::load_rgb8;
 use focusd::sim::demosaic_scenes::grey_edge;
 use focusd::sim::{render, SimParams};
-use focusd::stack::blur::gaussian_blur_channels;
-use focusd::stack::fuse::fuse;
-use focusd::stack::image::Image;
-use focusd::stack::metrics::psnr;
-use focusd::stack::params::FuseParams;
-use focusd::stack::NoProgress;
+use focusd::stack::internal::gaussian_blur_channels;
+use focusd::stack::{fuse, psnr, FuseParams, Image, NoProgress};
 use std::path::PathBuf;
 use std::time::Instant;
 

@@ -4,7 +4,7 @@
 //! `labelling compare [--runs N] [--no-align] [FRAME...]`: fuses the frames (or, given none, a
 //! generated flats stack of 8 frames of 1152×864) once per setting and run, and prints the median
 //! labelling and whole-fuse times and the energy of each setting's labels, computed by
-//! `focusd::stack::graphcut::labelling_energy` on the aligned frames, with their ratio. The
+//! `focusd::stack::internal::labelling_energy` on the aligned frames, with their ratio. The
 //! spill removal is off: it moves labels afterwards on colour evidence the energy does not hold.
 //!
 //! `labelling flats DIR [--frames N] [--width W] [--height H] [--seed S] [--noise SIGMA]
@@ -16,12 +16,10 @@ use anyhow::{bail, Context, Result};
 use focusd::files::imageio::load_rgb8;
 use focusd::files::outputs::save_image as save;
 use focusd::sim::flats::{flats, FlatsParams};
-use focusd::stack::align::Coverage;
-use focusd::stack::fuse::{fuse, warp_onto_reference, Fused};
-use focusd::stack::graphcut::{labelling_energy, GraphCutParams};
-use focusd::stack::image::Image;
-use focusd::stack::params::{middle_frame, FuseParams};
-use focusd::stack::{NoProgress, Stage};
+use focusd::stack::internal::{labelling_energy, warp_onto_reference};
+use focusd::stack::{
+    fuse, middle_frame, Coverage, FuseParams, Fused, GraphCutParams, Image, NoProgress, Stage,
+};
 use std::path::PathBuf;
 use std::time::Instant;
 

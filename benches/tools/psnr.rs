@@ -11,17 +11,17 @@
 //! fused.png: psnr 30.96 dB, max diff 187, tenengrad 20.85
 //! ```
 //!
-//! PSNR is over all pixels and channels on the 8-bit scale (`focusd::stack::metrics::psnr`),
+//! PSNR is over all pixels and channels on the 8-bit scale (`focusd::stack::psnr`),
 //! leaving out `N` pixels along each edge (default 0, as in the README's quality tables); max
 //! diff is the largest difference of one channel of one pixel over the same pixels (the arm64
 //! check in `tests/arm64/run` compares two builds' pictures with it).
 //! Tenengrad is the mean Sobel gradient magnitude of luma in 8-bit units
-//! (`focusd::stack::metrics::tenengrad`). An image that cannot be read or whose size differs
+//! (`focusd::stack::tenengrad`). An image that cannot be read or whose size differs
 //! from the truth's is reported on stderr and skipped; the exit status is then 1.
 
 use anyhow::{bail, Context, Result};
 use focusd::files::imageio::load_rgb8;
-use focusd::stack::metrics::{psnr, tenengrad};
+use focusd::stack::{psnr, tenengrad};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -71,7 +71,7 @@ fn parse_args() -> Result<Args> {
     })
 }
 
-fn measure(truth: &focusd::stack::image::Image<u8>, path: &Path, margin: usize) -> Result<()> {
+fn measure(truth: &focusd::stack::Image<u8>, path: &Path, margin: usize) -> Result<()> {
     let img = load_rgb8(path)?;
     if (img.width, img.height) != (truth.width, truth.height) {
         bail!(

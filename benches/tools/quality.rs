@@ -10,7 +10,7 @@
 //! output that chooses among the frames), then
 //! per image: PSNR overall, in the band within 3σ of a depth step (σ the largest defocus blur,
 //! `max_sigma` in stack.json) and elsewhere, Tenengrad, and the ghost share
-//! (`focusd::stack::ghosts`).
+//! (`focusd::stack::internal::ghosts`).
 //!
 //! `quality ghosts IMAGE FRAME...`: only the ghost share of IMAGE against its raw input frames
 //! (for real stacks, which have no truth).
@@ -18,12 +18,8 @@
 use anyhow::{bail, Context, Result};
 use focusd::files::imageio::{load, load_rgb8, Decoded};
 use focusd::sim::render::Mixing;
-use focusd::stack::ghosts;
-use focusd::stack::image::Image;
-use focusd::stack::metrics::{
-    best_frame_oracle, depth_oracle, psnr, psnr_where, step_band, tenengrad,
-};
-use focusd::stack::transform::Transforms;
+use focusd::stack::internal::{best_frame_oracle, depth_oracle, ghosts, psnr_where, step_band};
+use focusd::stack::{psnr, tenengrad, Image, Transforms};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

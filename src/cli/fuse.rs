@@ -6,13 +6,10 @@ use focusd::files::imageio::{self as io, Decoded, Header};
 use focusd::files::outputs::Outputs;
 use focusd::files::FileError;
 use focusd::service::fuse_settings::FuseSettings;
-use focusd::stack::fuse::{fuse, Alignment, FuseError};
-use focusd::stack::image::{Image, Sample};
-use focusd::stack::memory;
-use focusd::stack::metrics::tenengrad;
-use focusd::stack::params::FuseParams;
-use focusd::stack::register::{Placement, RegisterError};
-use focusd::stack::transform::{FrameTransform, Transforms};
+use focusd::stack::{
+    fuse, memory_plan, mib, tenengrad, Alignment, FrameTransform, FuseError, FuseParams, Image,
+    Placement, RegisterError, Sample, StackShape, Transforms,
+};
 use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -144,22 +141,22 @@ fn check_memory(a: &FuseArgs) -> Result<()> {
             );
         }
     }
-    let stack = memory::Stack {
+    let stack = StackShape {
         frames: headers.len(),
         width: w,
         height: h,
         channels: headers.iter().map(|d| d.channels).max().unwrap_or(3),
         sample_bytes: headers.iter().map(|d| d.sample_bytes).max().unwrap_or(1),
     };
-    let plan = memory::plan(&stack, &params(a, headers.len()));
+    let plan = memory_plan(&stack, &params(a, headers.len()));
     if !plan.fits() {
         bail!(
             "{} frames of {w}x{h} need about {} MiB even in the smallest bands, over the {} MiB \
              budget: give --memory {} or more, or fuse fewer or smaller frames",
             stack.frames,
-            memory::mib(plan.floor),
-            memory::mib(plan.budget),
-            memory::mib(plan.floor).max(64)
+            mib(plan.floor),
+            mib(plan.budget),
+            mib(plan.floor).max(64)
         );
     }
     Ok(())
@@ -222,6 +219,9 @@ fn run_typed<T: Sample>(
         report_alignment(al, &a.frames);
     }
     if let Some(s) = &fused.spill {
+        if let Some(r) = &s.repaired {
+            eprintln!("  repair {r}");
+        }
         eprintln!("  spill  {s}");
     }
 

@@ -11,8 +11,7 @@ use focusd::files::imageio::encode;
 use focusd::files::outputs::{save_image, write_atomic};
 use focusd::sim::bundle::{self, Shake};
 use focusd::sim::{self, FrameInfo, SimParams};
-use focusd::stack::image::Image;
-use focusd::stack::transform::{FrameTransform, Transforms};
+use focusd::stack::{FrameTransform, Image, Transforms};
 use serde::Serialize;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -544,10 +543,7 @@ mod tests {
             serde_json::from_slice(&fs::read(out.join("transforms.json")).unwrap()).unwrap();
         assert_eq!((t.reference, t.size, t.frames.len()), (1, [64, 48], 4));
         assert_eq!(t.frames[2].file, "frame_02.jpg");
-        assert_eq!(
-            t.frames[1].ref_to_frame,
-            focusd::stack::transform::Affine::IDENTITY
-        );
+        assert_eq!(t.frames[1].ref_to_frame, focusd::stack::Affine::IDENTITY);
         let s: serde_json::Value =
             serde_json::from_slice(&fs::read(out.join("stack.json")).unwrap()).unwrap();
         assert_eq!(s["seed"], 1);

@@ -133,7 +133,7 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
 
 /// [`demosaic`] computed `rows` output rows at a time.
 fn in_strips(m: &Mosaic, rows: usize) -> Image<f32> {
-    debug_assert!(rows > 0 && rows % 2 == 0);
+    debug_assert!(rows > 0 && rows.is_multiple_of(2));
     let (w, h) = (m.width, m.height);
     let mut out = vec![0.0f32; w * h * 3];
     if out.is_empty() {

@@ -47,10 +47,16 @@ pub struct FuseSettings {
     /// Halo removal (`--no-spill-removal` turns it off): where a near object meets the
     /// background, its defocused colour is taken out of the frames focused farther before
     /// they are composed, those frames do not give the near object's pixels their finest
-    /// detail, the background seen through its defocused edge, and a plain near object whose
-    /// rim took a far frame takes its own (graph cut only).
+    /// detail, the background seen through its defocused edge, and the label repairs run
+    /// (graph cut only; off, it turns the label repairs off too).
     #[arg(long = "no-spill-removal", action = clap::ArgAction::SetFalse)]
     pub spill_removal: bool,
+    /// Label repairs (`--no-label-repair` turns them off): where the labels gave a near object's
+    /// edge a frame focused behind it, a plain near object takes the frame that shows its
+    /// outline crisp, and the pixels next to a depth step whose colour is clearly the near
+    /// object's take its frame. They run within the spill removal (graph cut only).
+    #[arg(long = "no-label-repair", action = clap::ArgAction::SetFalse)]
+    pub label_repair: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -72,6 +78,7 @@ impl Default for FuseSettings {
             memory_mb: (DEFAULT_BUDGET >> 20) as u32,
             local_registration: true,
             spill_removal: true,
+            label_repair: true,
         }
     }
 }
@@ -95,6 +102,7 @@ impl FuseSettings {
             crop: self.crop,
             memory: (self.memory_mb as usize) << 20,
             spill: self.spill_removal,
+            label_repair: self.label_repair,
             ..FuseParams::default()
         };
         p.graphcut.lambda = self.lambda;
@@ -141,11 +149,12 @@ mod tests {
             "100",
             "--no-local-registration",
             "--no-spill-removal",
+            "--no-label-repair",
         ])
         .unwrap();
         let text =
             "method = \"pyramid\"\nlambda = 2.5\nquality = 80\ncrop = true\nmemory_mb = 100\n\
-                    local_registration = false\nspill_removal = false";
+                    local_registration = false\nspill_removal = false\nlabel_repair = false";
         assert_eq!(both, file(text));
         for (flag, key, bad) in [
             ("--lambda", "lambda", "10.5"),
@@ -188,5 +197,11 @@ mod tests {
             ..FuseSettings::default()
         };
         assert!(!kept.params(6).spill);
+        assert!(FuseSettings::default().params(6).label_repair);
+        let unrepaired = FuseSettings {
+            label_repair: false,
+            ..FuseSettings::default()
+        };
+        assert!(!unrepaired.params(6).label_repair);
     }
 }

@@ -182,6 +182,9 @@ pub fn run(
     }
     tracing::info!("focus order: {}", fused.order);
     if let Some(s) = &fused.spill {
+        if let Some(r) = &s.repaired {
+            tracing::info!("repair: {r}");
+        }
         tracing::info!("spill: {s}");
     }
     if progress.cancelled() {

@@ -101,12 +101,9 @@ impl Exposure {
 /// means of a sharp and a blurred frame line up; the spread of the blocks' brightness is what
 /// separates gain from offset.
 const BLOCKS: (usize, usize) = (12, 9);
-/// Samples per frame the block means are taken from, at most: the grid's step is rounded up.
-/// Rounded down, a 640×480 frame was sampled at every one of its 307k pixels and a 1.2 MP one
-/// at 137k; at most 100k, sim-data's aligned and hand-held stacks' warp stage (this and the
-/// resampling) took 23.6 → 18.3 and 31.5 → 26.3 ms (medians of 5 interleaved runs), their PSNR
-/// against the truth the same to 0.002 dB (and hand-held 10 × 3.1 MP's, with 5 % gain and 3 %
-/// white-balance jitter), benches/bench-quality's within 0.02 dB.
+/// Samples per frame the block means are taken from, at most: the grid's step is rounded up, so
+/// a small frame is not sampled at every pixel; more samples change the exposure estimate by
+/// nothing the output shows.
 const SAMPLES: usize = 100_000;
 /// Values at or above this fraction of full scale may be clipped and say nothing about gain.
 const CLIPPED: f32 = 0.98;
@@ -144,10 +141,7 @@ pub fn estimate_exposure<T: Sample>(
         let (at, row_block) = (raster.row(y), (y * by / h) * bx);
         for &(x, column_block) in &columns {
             // The nearest frame pixel: u + ½ truncated is u rounded wherever it is in the frame
-            // (u > −½), without the library call `round` is on baseline x86-64. With the
-            // columns' blocks and the raster's rows, the warp stage (this and the resampling)
-            // took 29.6 → 22.9 ms on sim-data/aligned, 40 → 30 on sim-data/handheld (medians
-            // of 5–7 interleaved runs), the output the same to the byte.
+            // (u > −½), without the library call `round` is on baseline x86-64.
             let (u, v) = at(x);
             let (u, v) = (u + 0.5, v + 0.5);
             if !(u > 0.0 && u < fw && v > 0.0 && v < fh) {
@@ -222,8 +216,7 @@ fn fit_exposure(points: &[(f64, f64, f64)]) -> Option<Exposure> {
 }
 
 /// Keys' cubic convolution weights (a = −½) of the four taps around a point `t` past the second.
-/// Bilinear resampling would soften every frame once more (measured: the oracle stack of
-/// sim-data/handheld loses 0.7 dB with it).
+/// Bilinear resampling would soften every frame once more.
 pub(super) fn keys(t: f32) -> [f32; 4] {
     let (t2, t3) = (t * t, t * t * t);
     [
@@ -306,8 +299,7 @@ pub const fn warp_lanes(channels: usize) -> usize {
 /// `warp_frame_into` for `C` channels, so the tap loops unroll. The frame's samples are held as
 /// floats in `L` lanes a pixel, `C` and unused ones after: three channels in four lanes make
 /// every tap one vector multiply-add instead of three scalar ones, each lane summing in the same
-/// order as the scalar loop did, so the output is the same (the resampling loop took 14 % less
-/// CPU time on a hand-held 10 × 3 MP stack, for a third more scratch memory).
+/// order as the scalar loop did, so the output is the same, for a third more scratch memory.
 fn warp_channels<T: Sample, const C: usize, const L: usize>(
     frame: &Image<T>,
     reference: &Image<T>,
@@ -326,8 +318,8 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
     });
     // Output rows in bands, each band's frame rows converted to floats just before it is
     // resampled: a scalar integer-to-float conversion per tap would cost more than the
-    // interpolation (16 taps per pixel and channel), and the whole frame as floats was 16 bytes
-    // a pixel of fresh memory (88 MB for a 5.5 MP frame) where a band's rows are a few MB. A
+    // interpolation (16 taps per pixel and channel), and the whole frame as floats would be 16
+    // bytes a pixel of fresh memory where a band's rows are a few megabytes. A
     // band is at least as tall as the rows a roll spreads one output row over, so no frame row
     // is converted more than about twice.
     let reach = warp.field.as_ref().map_or(0.0, |f| f.reach(1.0));
@@ -430,8 +422,7 @@ struct Rows<'a, const C: usize> {
 impl<const C: usize> Rows<'_, C> {
     /// Resamples output row `y` into `row`, taking `fallback`'s values where the frame does not
     /// cover it; returns the span it covers. Compiled for AVX where the CPU has it: the same
-    /// arithmetic in the same order (no fused multiply-add), so the same output, in 5 % less
-    /// time on a hand-held 10 × 3.1 MP stack.
+    /// arithmetic in the same order (no fused multiply-add), so the same output, in less time.
     fn warp<T: Sample, const L: usize>(
         &self,
         y: usize,
@@ -473,7 +464,7 @@ impl<const C: usize> Rows<'_, C> {
         let w = row.len() / C;
         let mut span = (w, 0);
         // The unused lane's sum, kept: a compiler that sees the lane unused splits every four-lane
-        // tap into a two-lane and a one-lane one, and the warp took 11 % more time so.
+        // tap into a two-lane and a one-lane one, which is slower.
         let mut pad = 0.0f32;
         let at = self.raster.row(y);
         for (x, out) in row.chunks_exact_mut(C).enumerate() {
@@ -537,8 +528,7 @@ impl<const C: usize> Rows<'_, C> {
             }
             // Inside: the 4×4 taps are contiguous runs of rows, each summed along x and then
             // weighted for y (separable: 20 multiply-adds a lane, not 16 and 16 products of
-            // weights; the warp took 7 % less time on a 1.9 MP parallax stack, and a few
-            // pixels in a hundred thousand round one level apart).
+            // weights, faster; a few pixels in a hundred thousand round one level apart).
             Taps::Inside { at, kx, ky } => {
                 let base = at * L;
                 for (r, &wy) in ky.iter().enumerate() {

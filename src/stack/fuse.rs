@@ -174,6 +174,7 @@ pub fn fuse<T: Sample>(
                     &textured,
                     coverage,
                     order.order,
+                    params.label_repair,
                     progress,
                 ));
                 lap(Stage::Spill, &mut timings);

@@ -20,7 +20,7 @@
 //! the window, and two copies far enough apart that their mix no longer looks like one frame's
 //! defocus; a misregistration inside the window is "moved a little" and passes. Even a perfect
 //! all-in-focus image scores a few per cent on small stacks, since at occlusion edges no frame
-//! holds a sharp near edge over a sharp background. The parameters are fixed (issue 13): the
+//! holds a sharp near edge over a sharp background. The parameters are fixed, so that the
 //! figures this check gives are comparable across versions of the fuse.
 
 use super::align::{warp_frame, Exposure};

@@ -258,6 +258,20 @@ impl Tap {
     pub fn cell(self) -> usize {
         self.lo
     }
+
+    /// The taps of full-resolution pixel `i`'s centre on an axis reduced by `factor` to
+    /// `reduced` pixels.
+    pub fn reduced(i: usize, factor: usize, reduced: usize) -> Tap {
+        Tap::new((i as f32 + 0.5) * (1.0 / factor as f32) - 0.5, reduced)
+    }
+
+    /// [`Self::reduced`] of each of `full` pixels: a frame's columns read the same taps on
+    /// every row and in every plane.
+    pub fn all_reduced(full: usize, factor: usize, reduced: usize) -> Vec<Tap> {
+        (0..full)
+            .map(|x| Tap::reduced(x, factor, reduced))
+            .collect()
+    }
 }
 
 impl Plane {

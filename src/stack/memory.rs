@@ -9,9 +9,9 @@
 
 use super::align::{warp_lanes, warp_scratch_rows};
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
-use super::flat_regions;
 use super::params::{FuseParams, Method};
 use super::register::finest_level;
+use super::repair::flat_regions;
 use super::spill;
 use std::fmt;
 
@@ -162,11 +162,15 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
         (fit_rows / grid).max(least / grid) * grid
     };
     // Taking the spill out: the frames, the label and texture maps and the un-mixing's own
-    // buffers, or before them the flat regions' (`flat_regions::settle`).
+    // buffers, or before them the flat regions' when the labels are repaired
+    // (`flat_regions::settle`).
     let unmix = match graphcut && p.spill {
         true => {
             let own = spill::working_bytes(s.frames, s.width, s.height, s.channels);
-            let settle = flat_regions::working_bytes(px, rayon::current_num_threads());
+            let settle = match p.label_repair {
+                true => flat_regions::working_bytes(px, rayon::current_num_threads()),
+                false => 0,
+            };
             frames + 2 * px + own.max(settle)
         }
         false => 0,

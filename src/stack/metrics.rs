@@ -7,8 +7,8 @@ use rayon::prelude::*;
 /// Tenengrad sharpness (the paper's metric): mean Sobel gradient magnitude of luma, in 8-bit units.
 ///
 /// Luma is made a band of rows at a time (with a row above and below), not for the whole image:
-/// the CLI reports every input frame's sharpness, and a whole float plane a frame was 8 % of an
-/// amber_macro fuse's freshly faulted (zeroed) pages.
+/// the CLI reports every input frame's sharpness, and a whole float plane a frame would be a
+/// large share of a fuse's freshly faulted (zeroed) pages.
 pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
     const BAND: usize = 64;
     let (w, h) = (img.width, img.height);
@@ -28,8 +28,8 @@ pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
 
 /// Σ Sobel gradient magnitude over the pixels of `l` that have all eight neighbours. Each row
 /// sums in [`LANES`] single-precision lanes, which the compiler vectorises, and rows add up in
-/// double precision: summed a pixel at a time in double precision it was 3 % of a hand-held
-/// fuse's CPU time, for a figure only the log shows.
+/// double precision: a pixel at a time in double precision costs a visible share of a fuse's CPU
+/// time, for a figure only the log shows.
 fn gradient_sum(l: &Plane) -> f64 {
     const LANES: usize = 8;
     let w = l.width;
@@ -125,7 +125,7 @@ pub fn step_band(steps: &Image<u8>, radius: f64) -> Vec<bool> {
 /// exposure of the truth (the frame's gain undone). The best any labelling of perfectly
 /// registered frames can do, and so a ceiling only if it loses nothing itself: the frames are
 /// sampled bicubically (Keys, as the engine warps them; bilinear sampling softens them once more,
-/// which put the oracle of the hand-held stacks 1–2 dB below the fused images it should bound).
+/// which would put the oracle below the fused images it should bound).
 pub fn depth_oracle(
     frames: &[Image<u8>],
     labels: &[u8],

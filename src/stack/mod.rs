@@ -1,26 +1,66 @@
 //! The stack engine: pure pixel work on in-memory frames, no I/O.
-pub mod align;
-pub mod blur;
-pub mod compose;
-pub mod expansion;
-pub mod flat_regions;
-pub mod focal_axis;
-pub mod focus;
-pub mod fuse;
-pub mod ghosts;
-pub mod graphcut;
-pub mod image;
-pub mod maxflow;
-pub mod memory;
-pub mod metrics;
-pub mod morphology;
-pub mod order;
-pub mod params;
-pub mod pyramid;
-pub mod register;
-pub mod spill;
-pub mod srgb;
-pub mod transform;
+//!
+//! The library's API is what this module re-exports: [`fuse`] with its parameters
+//! ([`FuseParams`]) and result ([`Fused`]), the frames ([`Image`]), progress reporting
+//! ([`Progress`], [`Stage`]), the memory plan and the metrics a caller compares outputs by. The
+//! modules themselves are the crate's own.
+pub(crate) mod align;
+pub(crate) mod blur;
+pub(crate) mod compose;
+pub(crate) mod expansion;
+pub(crate) mod focal_axis;
+pub(crate) mod focus;
+pub(crate) mod fuse;
+pub(crate) mod ghosts;
+pub(crate) mod graphcut;
+pub(crate) mod image;
+pub(crate) mod maxflow;
+pub(crate) mod memory;
+pub(crate) mod metrics;
+pub(crate) mod morphology;
+pub(crate) mod order;
+pub(crate) mod params;
+pub(crate) mod pyramid;
+pub(crate) mod register;
+pub(crate) mod repair;
+pub(crate) mod spill;
+pub(crate) mod srgb;
+pub(crate) mod transform;
+
+pub use align::{Coverage, Exposure, Rect};
+pub use focus::FocusParams;
+pub use fuse::{fuse, validate, Alignment, FuseError, Fused};
+pub use graphcut::GraphCutParams;
+pub use image::{Image, Sample};
+pub use memory::{mib, plan as memory_plan, Plan as MemoryPlan, Stack as StackShape};
+pub use metrics::{psnr, tenengrad};
+pub use order::{Order, OrderEvidence};
+pub use params::{middle_frame, FuseParams, Method, DEFAULT_BUDGET};
+pub use register::{Placement, RegisterError, RegisterParams, Registration};
+pub use repair::{Repaired, Settled};
+pub use spill::{Light, Pair, Unmixed};
+pub use transform::{Affine, FrameTransform, OffsetField, Transforms};
+
+/// Not API: the engine's inner steps, re-exported for the crate's tests, benches and
+/// measurement tools. Anything here may change or go without notice.
+#[doc(hidden)]
+pub mod internal {
+    pub use super::align::{warp_frame, warp_frame_into};
+    pub use super::blur::{gaussian_blur, gaussian_blur_channels};
+    pub use super::focus::{focus_amplitude, AMP_SCALE};
+    pub use super::fuse::warp_onto_reference;
+    /// The ghost check of an output against its frames.
+    pub mod ghosts {
+        pub use crate::stack::ghosts::{check, GhostReport, SEARCH, WIDTH};
+    }
+    pub use super::graphcut::{label_stack, labelling_energy};
+    pub use super::image::Plane;
+    pub use super::maxflow::GridMaxflow;
+    pub use super::metrics::{best_frame_oracle, depth_oracle, psnr_where, step_band};
+    pub use super::pyramid::{collapse, laplacian_pyramid, levels_for};
+    pub use super::register::{register, register_with};
+    pub use super::transform::Warp;
+}
 
 /// The engine's stages, in the order a fuse runs them. Their names are a contract: the
 /// daemon's `Progress` signals and the CLI's progress text and timings show them.

@@ -6,9 +6,8 @@ use rayon::prelude::*;
 /// The smallest value of `map` within `r` pixels (a square window, truncated at the borders).
 /// Separable: along each row the minimum of its 2r+1 shifts, then down the columns the
 /// minimum of each row's 2r+1 neighbours, every step a minimum of two whole rows, which the
-/// compiler vectorises (32 pixels an instruction). At r = 8 that is about a pixel an
-/// instruction; van Herk's running minima, a division and two branches a pixel and transposes
-/// between, took 0.16 s of CPU on a 3 × 5.5 MP stack.
+/// compiler vectorises: at r = 8 about a pixel an instruction, where van Herk's running minima
+/// cost a division and two branches a pixel and transposes between.
 pub fn window_min(map: &[u8], w: usize, h: usize, r: usize) -> Vec<u8> {
     let into_min = |out: &mut [u8], src: &[u8]| {
         out.iter_mut().zip(src).for_each(|(o, &v)| *o = (*o).min(v));

@@ -31,6 +31,11 @@ pub struct FuseParams {
     /// farther frames out of nearer labels' finest band, where they show the background through
     /// a defocused near object's edge (graph cut only; see `spill` and `compose`).
     pub spill: bool,
+    /// Repair the labels of near objects' edges that took a frame focused farther: flat regions
+    /// take the frame that shows their outline crisp, pixels next to a depth step the near
+    /// object's frame where their colour says so (see `repair`). Run within the spill removal:
+    /// without `spill` there is none.
+    pub label_repair: bool,
 }
 
 impl Default for FuseParams {
@@ -43,6 +48,7 @@ impl Default for FuseParams {
             crop: false,
             memory: DEFAULT_BUDGET,
             spill: true,
+            label_repair: true,
         }
     }
 }

@@ -172,12 +172,6 @@ fn expand_row(row: &[f32], out: &mut [f32], padded: &mut Vec<f32>) {
     }
 }
 
-pub fn gaussian_pyramid(p: &Plane, levels: usize) -> Vec<Plane> {
-    let mut pyr = with_levels(p.clone(), levels);
-    fill_gaussian(&mut pyr);
-    pyr
-}
-
 /// `p` followed by zero planes of the successively halved sizes: a pyramid's buffers, to be
 /// filled (and refilled for the next frame) in place.
 pub(crate) fn with_levels(p: Plane, levels: usize) -> Vec<Plane> {

@@ -4,9 +4,8 @@
 use focusd::sim::render::{render_scene, true_positions};
 use focusd::sim::scene::Scene;
 use focusd::sim::{render, SimParams};
-use focusd::stack::image::Plane;
-use focusd::stack::register::{register, RegisterParams, Registration};
-use focusd::stack::transform::Warp;
+use focusd::stack::internal::{register, Plane, Warp};
+use focusd::stack::{RegisterParams, Registration};
 
 /// Per frame but the reference: the RMS distance (px) between where the registration and the
 /// truth send the reference pixels on which that frame is sharp (its plane is the true depth

@@ -1,7 +1,7 @@
 //! The committed stacks and bundles under sim-data/, and loading their pictures.
 
-use focusd::stack::image::Image;
-use focusd::stack::transform::Transforms;
+use focusd::stack::Image;
+use focusd::stack::Transforms;
 use std::path::{Path, PathBuf};
 
 /// A path under the repository's sim-data/.

@@ -25,7 +25,7 @@ use focusd::backend::videodev::media::{self, Topology};
 use focusd::backend::videodev::Device;
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Imu, Sensor, Take};
-use focusd::stack::image::Image;
+use focusd::stack::Image;
 use std::fs;
 use std::path::{Path, PathBuf};
 

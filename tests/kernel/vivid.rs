@@ -19,7 +19,7 @@ use focusd::backend::videodev::abi::{self, Fract};
 use focusd::backend::videodev::{BufType, ControlDesc, Device, Stream};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Sensor, Take};
-use focusd::stack::image::Image;
+use focusd::stack::Image;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 

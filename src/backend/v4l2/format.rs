@@ -287,7 +287,7 @@ fn nv12_layout(
     (luma, luma_stride): (&[u8], usize),
     (chroma, chroma_stride): (&[u8], usize),
 ) -> Result<(usize, usize), String> {
-    if width % 2 != 0 || height % 2 != 0 {
+    if !width.is_multiple_of(2) || !height.is_multiple_of(2) {
         return Err(format!("{name}: odd frame size {width}x{height}"));
     }
     Ok((
@@ -339,7 +339,7 @@ pub fn to_rgb(
             }
         }
         PixelFormat::Yuyv | PixelFormat::Uyvy => {
-            if width % 2 != 0 {
+            if !width.is_multiple_of(2) {
                 return Err(format!("{name}: odd width {width}"));
             }
             let stride = check_layout(&name, width * 2, stride, height, 0, bytes)?;

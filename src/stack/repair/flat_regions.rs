@@ -6,7 +6,7 @@
 //! farther show the background's texture through the object's defocused edge, which the focus
 //! measure takes for the sharpest detail there. The rim is then labelled with a far frame, the
 //! object is composed with a blurred, haloed edge, and the spill removal finds no near region to
-//! take the halo out of (the replay bundle's magenta disc: its plane held 13 % of it).
+//! take the halo out of (the replay bundles' magenta disc).
 //!
 //! The cue is the region's outline. The frame focused on a plain object shows it flat right up
 //! to a crisp edge; a defocused frame shows a blurred ramp there, or texture seen through it,
@@ -24,10 +24,10 @@
 //!   occluder's frame; without this test a strip of `bundles/calm`'s cloudy background beside a
 //!   near star went to the star's frame and lost its soft texture.
 
-use super::align::Coverage;
-use super::image::{Image, Sample};
-use super::morphology::{dilate, distance};
-use super::order::MIN_STEP;
+use crate::stack::align::Coverage;
+use crate::stack::image::{Image, Sample};
+use crate::stack::morphology::{dilate, distance};
+use crate::stack::order::MIN_STEP;
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -35,10 +35,7 @@ use std::ops::Range;
 pub const MIN_AREA: usize = 64;
 /// A flat region whose bounding box is larger than this share of the frame (its inverse) is a
 /// background, not a plain near object, and is left as it is: deciding one costs as much as its
-/// box (on amber_macro and ring_macro the one background region, 70–85 % of the frame, took most
-/// of this step's 50–120 ms; on bench-report's layered 8 × 1.9 MP stack a region of less than a
-/// quarter of the frame sprawling over all of it took a quarter of the step's CPU time, and
-/// neither was ever taken).
+/// box, and a background region sprawling over most of the frame is never taken anyway.
 pub const LARGEST: usize = 4;
 /// How far beyond a flat region (px) a frame may show it flat: the widest rim over which a
 /// defocused frame shows texture through a plain object's edge, about 2σ of the deepest blur
