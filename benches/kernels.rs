@@ -43,7 +43,7 @@ fn bench_kernels(c: &mut Criterion) {
     // A hand-held frame's warp: a small similarity plus a local offset field (one node every
     // 4 px, as local registration gives at its working level), bicubic, into reused buffers.
     let frame = Image::<u8>::from_fn(w, h, 3, |x, y, c| {
-        (p.data[y * w + x] * 255.0) as u8 ^ (c as u8 * 40)
+        (p.data()[y * w + x] * 255.0) as u8 ^ (c as u8 * 40)
     });
     let centre = (w as f64 / 2.0, h as f64 / 2.0);
     let affine = Affine::similarity(1.003, 0.004, centre, (3.3, -2.7));
@@ -75,7 +75,7 @@ fn bench_kernels(c: &mut Criterion) {
     });
     // A MIPI RAW10 frame (the OnePlus 6's camss stores it packed) of the texture above: unpack,
     // black level, white balance, demosaic, colour matrix, sRGB to 8 bits.
-    let codes: Vec<u16> = p.data.iter().map(|&v| (v * 1023.0) as u16).collect();
+    let codes: Vec<u16> = p.data().iter().map(|&v| (v * 1023.0) as u16).collect();
     let packed: Vec<u8> = codes
         .chunks_exact(4)
         .flat_map(|q| {

@@ -34,9 +34,9 @@ fn oracle(s: &SimStack) -> Image<u8> {
             })
             .collect();
         let (warped, _) = warp_frame(f, r, &Warp::affine(s.ref_to_frame[i]), &truth);
-        for (p, &d) in s.depth.data.iter().enumerate() {
+        for (p, &d) in s.depth.data().iter().enumerate() {
             if d as usize == i {
-                out.data[p * 3..p * 3 + 3].copy_from_slice(&warped.data[p * 3..p * 3 + 3]);
+                out.data_mut()[p * 3..p * 3 + 3].copy_from_slice(&warped.data()[p * 3..p * 3 + 3]);
             }
         }
     }
@@ -98,8 +98,8 @@ fn no_pixel_comes_from_a_frame_that_does_not_cover_it() {
     let s = handheld(23);
     let fused = fuse(s.frames.clone(), &params(&s), &NoProgress).unwrap();
     let al = fused.alignment.unwrap();
-    let w = s.truth.width;
-    let uncovered = |c: &Coverage| (0..s.truth.height).any(|y| c.spans[y] != (0, w as u32));
+    let w = s.truth.width();
+    let uncovered = |c: &Coverage| (0..s.truth.height()).any(|y| c.spans[y] != (0, w as u32));
     // The stack's poses do leave parts of the reference uncovered by some frames.
     assert!(al.coverage.iter().any(uncovered));
     for (p, &l) in fused.labels.iter().enumerate() {
@@ -110,7 +110,7 @@ fn no_pixel_comes_from_a_frame_that_does_not_cover_it() {
     }
     // No black border: the output's edge rows and columns are as bright as the truth's.
     let edge_mean = |img: &Image<u8>| {
-        let (w, h) = (img.width, img.height);
+        let (w, h) = (img.width(), img.height());
         let edge: Vec<f64> = (0..w)
             .flat_map(|x| [(x, 0), (x, h - 1)])
             .chain((0..h).flat_map(|y| [(0, y), (w - 1, y)]))
@@ -135,8 +135,11 @@ fn crop_keeps_the_area_every_frame_covers() {
     let fused = fuse(s.frames.clone(), &p, &NoProgress).unwrap();
     let r = fused.crop.unwrap();
     let al = fused.alignment.unwrap();
-    assert_eq!((fused.image.width, fused.image.height), (r.width, r.height));
-    assert!(r.width < s.truth.width && r.height < s.truth.height);
+    assert_eq!(
+        (fused.image.width(), fused.image.height()),
+        (r.width, r.height)
+    );
+    assert!(r.width < s.truth.width() && r.height < s.truth.height());
     // Every frame covers the whole rectangle...
     for c in &al.coverage {
         for y in r.y..r.y + r.height {
@@ -144,14 +147,14 @@ fn crop_keeps_the_area_every_frame_covers() {
         }
     }
     // ...which is most of the frame for a 3% shift.
-    assert!(r.width * r.height * 10 > s.truth.width * s.truth.height * 8);
+    assert!(r.width * r.height * 10 > s.truth.width() * s.truth.height() * 8);
 }
 
 #[test]
 fn a_nearly_blank_frame_still_fuses() {
     let mut s = handheld(22);
     let blank = s.frames.len() - 2;
-    let (w, h) = (s.truth.width, s.truth.height);
+    let (w, h) = (s.truth.width(), s.truth.height());
     let noise = Plane::from_fn(w, h, 1, |x, y, _| {
         let v = (x as u32).wrapping_mul(2_654_435_761) ^ (y as u32).wrapping_mul(40_503);
         0.5 + 0.01 * ((v >> 24) as f32 / 255.0 - 0.5)

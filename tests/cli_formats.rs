@@ -286,7 +286,7 @@ fn cmyk_jpeg_is_read_as_rgb_and_fuses() {
         focusd::files::imageio::Decoded::U8(i) => i,
         focusd::files::imageio::Decoded::U16(_) => panic!("8-bit expected"),
     };
-    assert_eq!((img.width, img.height, img.channels), (48, 32, 3));
+    assert_eq!((img.width(), img.height(), img.channels()), (48, 32, 3));
     for (bx, by) in [(0, 0), (5, 0), (2, 3)] {
         let c = ink(bx, by, 0);
         let (x, y) = (bx * 8 + 4, by * 8 + 4);

@@ -37,7 +37,7 @@ fn stack(name: &str) -> Stack {
     let frames: Vec<_> = files.iter().map(|p| load_u8(p)).collect();
     let n = frames.len();
     let depth = load_u8(&dir.join("depth.png"))
-        .data
+        .data()
         .iter()
         .map(|&v| (v as f32 * (n - 1) as f32 / 255.0).round() as u8)
         .collect();
@@ -58,10 +58,10 @@ fn textured(truth: &Image<u8>) -> Vec<bool> {
 
 fn oracle(s: &Stack) -> Image<u8> {
     let mut o = s.truth.clone();
-    let ch = o.channels;
+    let ch = o.channels();
     for (p, &d) in s.depth.iter().enumerate() {
-        o.data[p * ch..p * ch + ch]
-            .copy_from_slice(&s.frames[d as usize].data[p * ch..p * ch + ch]);
+        o.data_mut()[p * ch..p * ch + ch]
+            .copy_from_slice(&s.frames[d as usize].data()[p * ch..p * ch + ch]);
     }
     o
 }
@@ -141,7 +141,7 @@ fn small_aligned_stack_beats_inputs_and_baseline() {
 #[test]
 fn a_tight_memory_budget_changes_nothing_but_the_bands() {
     let s = stack("handheld");
-    let (w, h) = (s.frames[0].width, s.frames[0].height);
+    let (w, h) = (s.frames[0].width(), s.frames[0].height());
     let roomy = fuse(s.frames.clone(), &FuseParams::default(), &NoProgress).unwrap();
     assert_eq!(roomy.memory.band_rows, usize::MAX, "{:?}", roomy.memory);
     for method in [Method::GraphCut, Method::Pyramid] {
@@ -182,7 +182,7 @@ fn a_tight_memory_budget_changes_nothing_but_the_bands() {
 #[test]
 fn the_main_jobs_plain_disc_takes_its_own_plane() {
     let s = stack("bundles/shaken");
-    let (w, plane) = (s.truth.width, 3);
+    let (w, plane) = (s.truth.width(), 3);
     // The disc: plane 3 in a box around it (the ruler below it is planes 0 and 1).
     let disc: Vec<usize> = (0..s.depth.len())
         .filter(|&i| (340..460).contains(&(i % w)) && (230..330).contains(&(i / w)))

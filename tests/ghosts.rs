@@ -75,15 +75,15 @@ fn truth_passes_a_doubled_image_fails_and_poses_are_found() {
     // 2 px (4.2 px: parallax a window of ±5 px let pass).
     let t = &s.truth;
     for (shift, least) in [(8, 0.15), (2, 0.1)] {
-        let moved = Image::<u8>::from_fn(t.width, t.height, 3, |x, y, c| {
+        let moved = Image::<u8>::from_fn(t.width(), t.height(), 3, |x, y, c| {
             let dx = if (y / 40) % 2 == 1 { shift } else { 0 };
-            t.at((x + dx).min(t.width - 1), y, c)
+            t.at((x + dx).min(t.width() - 1), y, c)
         });
         ghosts_above(&moved, &s, least, &format!("bands shifted {shift} px"));
     }
     // Two copies 12 px apart, half and half: doubled text.
-    let doubled = Image::<u8>::from_fn(t.width, t.height, 3, |x, y, c| {
-        let other = t.at((x + 12).min(t.width - 1), y, c);
+    let doubled = Image::<u8>::from_fn(t.width(), t.height(), 3, |x, y, c| {
+        let other = t.at((x + 12).min(t.width() - 1), y, c);
         ((t.at(x, y, c) as u16 + other as u16) / 2) as u8
     });
     ghosts_above(&doubled, &s, 0.15, "doubled");

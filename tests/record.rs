@@ -55,7 +55,7 @@ fn a_recorded_sweep_replays_to_the_same_verdicts_and_frames() {
     assert_eq!(verdicts(&again).iter().filter(|v| !v.2).count(), 2);
     // Frames are stored losslessly.
     for (a, b) in again.frames.iter().zip(&original.frames) {
-        assert_eq!(a.image.data, b.image.data);
+        assert_eq!(a.image.data(), b.image.data());
         assert_eq!(
             (a.exposure_start, a.exposure_end),
             (b.exposure_start, b.exposure_end)

@@ -42,7 +42,7 @@ struct Errors {
 
 impl Errors {
     fn of(out: &Image<u8>, truth: &Image<u8>, margin: usize) -> Errors {
-        let (w, h) = (truth.width, truth.height);
+        let (w, h) = (truth.width(), truth.height());
         let luma = |x: usize, y: usize| {
             0.299 * f32::from(truth.at(x, y, 0))
                 + 0.587 * f32::from(truth.at(x, y, 1))
@@ -165,8 +165,8 @@ fn fused() {
             // the developed frames by their own labels and by the RGB frames', the RGB frames by
             // theirs.
             let pick = |frames: &[Image<u8>], labels: &[u8]| {
-                Image::from_fn(truth.width, truth.height, 3, |x, y, c| {
-                    frames[labels[y * truth.width + x] as usize].at(x, y, c)
+                Image::from_fn(truth.width(), truth.height(), 3, |x, y, c| {
+                    frames[labels[y * truth.width() + x] as usize].at(x, y, c)
                 })
             };
             let picked = [
@@ -199,14 +199,14 @@ fn edges() {
         for slope in [0.0f32, 0.2, 1.0] {
             let out = developed(&Mosaic::sample(&grey_edge(slope, width), BayerOrder::Rggb));
             let fringe = out
-                .data
+                .data()
                 .chunks_exact(3)
                 .map(|p| p[0].abs_diff(p[1]).max(p[2].abs_diff(p[1])))
                 .max()
                 .unwrap_or(0);
             let mut zipper = 0;
-            for y in 2..out.height - 3 {
-                for x in 0..out.width {
+            for y in 2..out.height() - 3 {
+                for x in 0..out.width() {
                     for c in 0..3 {
                         zipper = zipper.max(out.at(x, y, c).abs_diff(out.at(x, y + 1, c)));
                     }

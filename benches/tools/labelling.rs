@@ -85,7 +85,7 @@ fn main() -> Result<()> {
 }
 
 fn compare(frames: Vec<Image<u8>>, runs: usize, align: bool) -> Result<()> {
-    let (n, w, h) = (frames.len(), frames[0].width, frames[0].height);
+    let (n, w, h) = (frames.len(), frames[0].width(), frames[0].height());
     println!("{n} frames of {w}x{h}, {runs} runs each, align {align}");
     println!(
         "{:<12} {:>10} {:>10} {:>16}",
@@ -149,7 +149,7 @@ fn aligned(
 ) -> (Vec<Image<u8>>, Vec<Coverage>) {
     let mut frames = frames.to_vec();
     let Some(a) = &fused.alignment else {
-        let (w, h) = (frames[0].width, frames[0].height);
+        let (w, h) = (frames[0].width(), frames[0].height());
         let n = frames.len();
         return (frames, vec![Coverage::full(w, h); n]);
     };

@@ -73,28 +73,28 @@ fn parse_args() -> Result<Args> {
 
 fn measure(truth: &focusd::stack::Image<u8>, path: &Path, margin: usize) -> Result<()> {
     let img = load_rgb8(path)?;
-    if (img.width, img.height) != (truth.width, truth.height) {
+    if (img.width(), img.height()) != (truth.width(), truth.height()) {
         bail!(
             "{}: {}x{} does not match the truth's size {}x{}",
             path.display(),
-            img.width,
-            img.height,
-            truth.width,
-            truth.height
+            img.width(),
+            img.height(),
+            truth.width(),
+            truth.height()
         );
     }
-    if 2 * margin >= img.width.min(img.height) {
+    if 2 * margin >= img.width().min(img.height()) {
         bail!(
             "{}: a margin of {margin} px leaves no pixels of {}x{}",
             path.display(),
-            img.width,
-            img.height
+            img.width(),
+            img.height()
         );
     }
-    let (w, ch) = (img.width, img.channels);
-    let max_diff = (margin..img.height - margin)
+    let (w, ch) = (img.width(), img.channels());
+    let max_diff = (margin..img.height() - margin)
         .flat_map(|y| (margin * ch..(w - margin) * ch).map(move |i| y * w * ch + i))
-        .map(|i| img.data[i].abs_diff(truth.data[i]))
+        .map(|i| img.data()[i].abs_diff(truth.data()[i]))
         .max()
         .unwrap_or(0);
     println!(

@@ -27,7 +27,7 @@ const USAGE: &str = "usage: quality sim DIR IMAGE... | quality ghosts IMAGE FRAM
 
 fn load_gray(path: &Path) -> Result<Image<u8>> {
     match load(path)? {
-        Decoded::U8(i) if i.channels == 1 => Ok(i),
+        Decoded::U8(i) if i.channels() == 1 => Ok(i),
         _ => bail!("{}: expected 8-bit gray", path.display()),
     }
 }
@@ -59,12 +59,12 @@ fn sim(dir: &Path, images: &[PathBuf]) -> Result<()> {
     let n = frames.len();
     let truth = load_rgb8(&dir.join("truth.png"))?;
     let labels: Vec<u8> = load_gray(&dir.join("depth.png"))?
-        .data
+        .data()
         .iter()
         .map(|&v| (v as f32 * (n - 1) as f32 / 255.0).round() as u8)
         .collect();
     let band = step_band(&load_gray(&dir.join("steps.png"))?, 3.0 * sigma);
-    let w = truth.width;
+    let w = truth.width();
     let motion: Vec<Option<Image<u16>>> = (0..n)
         .map(|i| match load(&dir.join(format!("motion_{i:02}.png"))) {
             Ok(Decoded::U16(m)) => Some(m),

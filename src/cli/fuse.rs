@@ -183,17 +183,17 @@ fn to_u16(d: Decoded) -> Image<u16> {
 
 /// Gray frames in a colour stack become RGB so every frame has the same channels.
 fn match_channels<T: Sample>(frames: Vec<Image<T>>) -> Vec<Image<T>> {
-    if frames.iter().all(|f| f.channels == frames[0].channels) {
+    if frames.iter().all(|f| f.channels() == frames[0].channels()) {
         return frames;
     }
     frames
         .into_iter()
         .map(|f| {
-            if f.channels == 3 {
+            if f.channels() == 3 {
                 f
             } else {
-                let data = f.data.iter().flat_map(|&v| [v, v, v]).collect();
-                Image::from_vec(f.width, f.height, 3, data)
+                let data = f.data().iter().flat_map(|&v| [v, v, v]).collect();
+                Image::from_vec(f.width(), f.height(), 3, data)
             }
         })
         .collect()
@@ -207,7 +207,7 @@ fn run_typed<T: Sample>(
 ) -> Result<()> {
     let frames = match_channels(frames);
     let n = frames.len();
-    let (w, h) = (frames[0].width, frames[0].height);
+    let (w, h) = (frames[0].width(), frames[0].height());
     let params = params(a, n);
     let reference = params.reference;
     let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
@@ -233,8 +233,8 @@ fn run_typed<T: Sample>(
     if let Some(d) = &a.depthmap {
         let scale = 255.0 / (n - 1) as f32;
         let depth = Image::from_vec(
-            fused.image.width,
-            fused.image.height,
+            fused.image.width(),
+            fused.image.height(),
             1,
             fused
                 .labels

@@ -270,7 +270,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         1,
         stack
             .depth
-            .data
+            .data()
             .iter()
             .map(|&i| (i as f32 * scale).round() as u8)
             .collect(),
@@ -500,23 +500,23 @@ mod tests {
         let out = &args.output;
         for i in 0..4 {
             match load(&out.join(frame_name(i))).unwrap() {
-                Decoded::U8(f) => assert_eq!((f.width, f.height, f.channels), (64, 48, 3)),
+                Decoded::U8(f) => assert_eq!((f.width(), f.height(), f.channels()), (64, 48, 3)),
                 Decoded::U16(_) => panic!("frames are 8-bit"),
             }
         }
         let Decoded::U8(depth) = load(&out.join("depth.png")).unwrap() else {
             panic!("depth is 8-bit")
         };
-        assert_eq!(depth.channels, 1);
-        assert!(depth.data.iter().all(|v| [0, 85, 170, 255].contains(v)));
+        assert_eq!(depth.channels(), 1);
+        assert!(depth.data().iter().all(|v| [0, 85, 170, 255].contains(v)));
         let Decoded::U8(truth) = load(&out.join("truth.png")).unwrap() else {
             panic!("truth is 8-bit")
         };
-        assert_eq!((truth.width, truth.channels), (64, 3));
+        assert_eq!((truth.width(), truth.channels()), (64, 3));
         let Decoded::U8(steps) = load(&out.join("steps.png")).unwrap() else {
             panic!("steps are 8-bit")
         };
-        assert!(steps.data.contains(&255) && steps.data.contains(&0));
+        assert!(steps.data().contains(&255) && steps.data().contains(&0));
         // The written motion is the simulator's: the reference does not move, the others move
         // by their affine plus up to the frame's parallax on near layers.
         let p = args.params();
@@ -532,8 +532,8 @@ mod tests {
             for (k, &(u, v)) in pos.iter().enumerate() {
                 let (x, y) = ((k % 64) as f64, (k / 64) as f64);
                 let (au, av) = a.apply(x, y);
-                let dx = (m.data[3 * k] as f64 - 32768.0) / 1024.0;
-                let dy = (m.data[3 * k + 1] as f64 - 32768.0) / 1024.0;
+                let dx = (m.data()[3 * k] as f64 - 32768.0) / 1024.0;
+                let dy = (m.data()[3 * k + 1] as f64 - 32768.0) / 1024.0;
                 assert!((au + dx - u).abs() < 1e-3 && (av + dy - v).abs() < 1e-3);
                 most = most.max(dx.hypot(dy));
             }

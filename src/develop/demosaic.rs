@@ -653,7 +653,7 @@ pub(super) mod tests {
             ..m.clone()
         };
         let mut rgb = filter(&encoded);
-        for v in &mut rgb.data {
+        for v in rgb.data_mut() {
             *v = decode.at(*v);
         }
         rgb

@@ -72,13 +72,13 @@ impl Mosaic {
     /// The mosaic a sensor with this pattern would record of linear RGB `rgb` (three channels):
     /// each pixel keeps its own colour. For simulations and tests.
     pub fn sample(rgb: &Image<f32>, order: BayerOrder) -> Mosaic {
-        let data = (0..rgb.height)
-            .flat_map(|y| (0..rgb.width).map(move |x| (x, y)))
+        let data = (0..rgb.height())
+            .flat_map(|y| (0..rgb.width()).map(move |x| (x, y)))
             .map(|(x, y)| rgb.at(x, y, order.channel(x, y)))
             .collect();
         Mosaic {
-            width: rgb.width,
-            height: rgb.height,
+            width: rgb.width(),
+            height: rgb.height(),
             order,
             data,
         }
@@ -132,11 +132,11 @@ pub use crate::stack::srgb::{decode as srgb_decode, encode as srgb_encode};
 /// that a test or measurement mosaics as a sensor would see them.
 pub fn decode(img: &Image<u8>) -> Image<f32> {
     let data = img
-        .data
+        .data()
         .iter()
         .map(|&v| srgb_decode(f32::from(v) / 255.0))
         .collect();
-    Image::from_vec(img.width, img.height, img.channels, data)
+    Image::from_vec(img.width(), img.height(), img.channels(), data)
 }
 
 /// Linear RGB to 8-bit sRGB.
@@ -147,11 +147,11 @@ pub fn encode(rgb: &Image<f32>) -> Image<u8> {
         .map(|i| (srgb_encode(i as f32 / STEPS as f32) * 255.0 + 0.5) as u8)
         .collect();
     let data = rgb
-        .data
+        .data()
         .iter()
         .map(|&v| table[(v.clamp(0.0, 1.0) * STEPS as f32 + 0.5) as usize])
         .collect();
-    Image::from_vec(rgb.width, rgb.height, rgb.channels, data)
+    Image::from_vec(rgb.width(), rgb.height(), rgb.channels(), data)
 }
 
 /// How one camera's raw frames are developed, with its white balance once measured.
@@ -181,7 +181,7 @@ impl Developer {
         m.balance(gains);
         let mut rgb = demosaic::demosaic(&m);
         let k = self.matrix;
-        for px in rgb.data.chunks_exact_mut(3) {
+        for px in rgb.data_mut().chunks_exact_mut(3) {
             let v = [px[0], px[1], px[2]];
             for (out, row) in px.iter_mut().zip(k) {
                 *out = row[0] * v[0] + row[1] * v[1] + row[2] * v[2];

@@ -57,7 +57,7 @@ fn demosaic_beats_bilinear_by_6_db_and_malvar_by_2_5_db_on_simulated_scenes() {
 
 /// False colour on a neutral (grey) edge: the largest |R−G| or |B−G| in sRGB 8-bit units.
 fn fringe(img: &Image<u8>) -> u8 {
-    img.data
+    img.data()
         .chunks_exact(3)
         .map(|p| p[0].abs_diff(p[1]).max(p[2].abs_diff(p[1])))
         .max()
@@ -68,8 +68,8 @@ fn fringe(img: &Image<u8>) -> u8 {
 /// (each row of the image is the same).
 fn zipper(img: &Image<u8>) -> u8 {
     let mut worst = 0;
-    for y in 2..img.height - 3 {
-        for x in 0..img.width {
+    for y in 2..img.height() - 3 {
+        for x in 0..img.width() {
             for c in 0..3 {
                 worst = worst.max(img.at(x, y, c).abs_diff(img.at(x, y + 1, c)));
             }
@@ -140,7 +140,7 @@ fn white_balance_is_measured_once_and_locked() {
     let mean = |c: usize| {
         let v: Vec<f32> = (0..1024)
             .filter(inside)
-            .map(|i| a.data[i * 3 + c])
+            .map(|i| a.data()[i * 3 + c])
             .collect();
         v.iter().sum::<f32>() / v.len() as f32
     };
@@ -174,7 +174,7 @@ fn clipped_highlights_do_not_count_for_white_balance() {
     for x in 0..16 {
         for y in 0..8 {
             for c in 0..3 {
-                rgb.data[(y * 16 + x) * 3 + c] = 1.0;
+                rgb.data_mut()[(y * 16 + x) * 3 + c] = 1.0;
             }
         }
     }
@@ -191,7 +191,7 @@ fn the_colour_matrix_and_srgb_curve_are_applied() {
     // Rows summing to 1 keep a balanced grey grey; a swap matrix moves colour.
     let mut dev = Developer::new(0, [[1.5, -0.3, -0.2], [-0.2, 1.4, -0.2], [0.0, -0.5, 1.5]]);
     let out = dev.develop_linear(Mosaic::sample(&grey, BayerOrder::Grbg));
-    assert!(out.data.iter().all(|v| (v - 0.2).abs() < 1e-5));
+    assert!(out.data().iter().all(|v| (v - 0.2).abs() < 1e-5));
     let colour = Image::from_fn(8, 8, 3, |_, _, c| [0.5f32, 0.25, 0.125][c]);
     let mut dev = Developer {
         black_level: 0,

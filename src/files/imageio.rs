@@ -24,8 +24,8 @@ pub enum Decoded {
 impl Decoded {
     pub fn dimensions(&self) -> (usize, usize) {
         match self {
-            Decoded::U8(i) => (i.width, i.height),
-            Decoded::U16(i) => (i.width, i.height),
+            Decoded::U8(i) => (i.width(), i.height()),
+            Decoded::U16(i) => (i.width(), i.height()),
         }
     }
 }
@@ -361,10 +361,10 @@ pub fn load_rgb8(path: &Path) -> Result<Image<u8>> {
         Decoded::U8(i) => i,
         Decoded::U16(i) => i.convert(),
     };
-    Ok(if img.channels == 3 {
+    Ok(if img.channels() == 3 {
         img
     } else {
-        Image::from_fn(img.width, img.height, 3, |x, y, _| img.at(x, y, 0))
+        Image::from_fn(img.width(), img.height(), 3, |x, y, _| img.at(x, y, 0))
     })
 }
 
@@ -403,16 +403,16 @@ pub fn encode<T: Sample>(img: &Image<T>, format: ImageFormat, quality: u8) -> Re
     if format == ImageFormat::Jpeg {
         return jpeg(img, quality);
     }
-    let (w, h) = (img.width as u32, img.height as u32);
+    let (w, h) = (img.width() as u32, img.height() as u32);
     let dynamic = if T::MAX > 255.0 {
-        let data: Vec<u16> = img.convert::<u16>().data;
-        match img.channels {
+        let data: Vec<u16> = img.convert::<u16>().into_data();
+        match img.channels() {
             1 => DynamicImage::ImageLuma16(image::ImageBuffer::from_raw(w, h, data).unwrap()),
             _ => DynamicImage::ImageRgb16(image::ImageBuffer::from_raw(w, h, data).unwrap()),
         }
     } else {
-        let data: Vec<u8> = img.convert::<u8>().data;
-        match img.channels {
+        let data: Vec<u8> = img.convert::<u8>().into_data();
+        match img.channels() {
             1 => DynamicImage::ImageLuma8(image::ImageBuffer::from_raw(w, h, data).unwrap()),
             _ => DynamicImage::ImageRgb8(image::ImageBuffer::from_raw(w, h, data).unwrap()),
         }
@@ -427,20 +427,20 @@ pub fn encode<T: Sample>(img: &Image<T>, format: ImageFormat, quality: u8) -> Re
 /// quality.
 fn jpeg<T: Sample>(img: &Image<T>, quality: u8) -> Result<Vec<u8>> {
     let side = |v: usize| u16::try_from(v).ok().filter(|&v| v > 0);
-    let (Some(w), Some(h)) = (side(img.width), side(img.height)) else {
+    let (Some(w), Some(h)) = (side(img.width()), side(img.height())) else {
         return Err(FileError::JpegSize {
-            width: img.width,
-            height: img.height,
+            width: img.width(),
+            height: img.height(),
         });
     };
-    let colour = match img.channels {
+    let colour = match img.channels() {
         1 => jpeg_encoder::ColorType::Luma,
         _ => jpeg_encoder::ColorType::Rgb,
     };
     let mut out = Vec::new();
     let mut enc = jpeg_encoder::Encoder::new(&mut out, quality);
     enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_4_4);
-    enc.encode(&img.convert::<u8>().data, w, h, colour)?;
+    enc.encode(img.convert::<u8>().data(), w, h, colour)?;
     Ok(out)
 }
 

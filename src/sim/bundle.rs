@@ -111,9 +111,9 @@ fn trace(takes: &[SimTake], end: Nanos, seed: u64) -> Vec<ImuSample> {
 
 /// `img` smeared horizontally over `length` pixels (a box along the shake).
 pub fn smear(img: &Image<u8>, length: usize) -> Image<u8> {
-    let (w, ch) = (img.width, img.channels);
+    let (w, ch) = (img.width(), img.channels());
     let half = length / 2;
-    Image::from_fn(img.width, img.height, ch, |x, y, c| {
+    Image::from_fn(img.width(), img.height(), ch, |x, y, c| {
         let (lo, hi) = (x.saturating_sub(half), (x + half).min(w - 1));
         let sum: u32 = (lo..=hi).map(|xx| img.at(xx, y, c) as u32).sum();
         (sum as f32 / (hi - lo + 1) as f32).round() as u8

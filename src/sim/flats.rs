@@ -202,8 +202,8 @@ mod tests {
         };
         // Horizontal gradient energy of a frame's green over the pixels `keep` chooses.
         let grad = |f: &Image<u8>, keep: &dyn Fn(usize, usize) -> bool| -> f64 {
-            (0..f.height)
-                .flat_map(|y| (1..f.width).map(move |x| (x, y)))
+            (0..f.height())
+                .flat_map(|y| (1..f.width()).map(move |x| (x, y)))
                 .filter(|&(x, y)| keep(x, y))
                 .map(|(x, y)| (f.at(x, y, 1) as f64 - f.at(x - 1, y, 1) as f64).powi(2))
                 .sum()

@@ -117,10 +117,10 @@ pub struct Raster {
 
 impl Raster {
     fn width(&self) -> usize {
-        self.planes[0].width
+        self.planes[0].width()
     }
     fn height(&self) -> usize {
-        self.planes[0].height
+        self.planes[0].height()
     }
 }
 
@@ -216,7 +216,7 @@ fn blur_varying(r: &Raster, sigma: &[f32]) -> Raster {
     let mut planes: [Plane; 4] = std::array::from_fn(|_| Plane::new(r.width(), r.height(), 1));
     for (k, plane) in planes.iter_mut().enumerate() {
         plane
-            .data
+            .data_mut()
             .par_iter_mut()
             .zip(sigma.par_iter())
             .enumerate()
@@ -226,9 +226,9 @@ fn blur_varying(r: &Raster, sigma: &[f32]) -> Raster {
                     .clamp(1, levels.len() - 1)
                     - 1;
                 let t = ((s - levels[j]) / (levels[j + 1] - levels[j])).clamp(0.0, 1.0);
-                *o = rungs[j][k].data[i] * (1.0 - t) + rungs[j + 1][k].data[i] * t;
+                *o = rungs[j][k].data()[i] * (1.0 - t) + rungs[j + 1][k].data()[i] * t;
             });
-        debug_assert_eq!(plane.data.len(), n);
+        debug_assert_eq!(plane.data().len(), n);
     }
     Raster {
         x0: r.x0,
@@ -240,12 +240,12 @@ fn blur_varying(r: &Raster, sigma: &[f32]) -> Raster {
 /// `out = P + (1 − A)·out` over the raster's crop.
 fn composite(out: &mut [Plane; 3], r: &Raster) {
     let (w, h) = (r.width(), r.height());
-    let cw = out[0].width;
-    let alpha = &r.planes[3].data;
+    let cw = out[0].width();
+    let alpha = r.planes[3].data();
     for (c, plane) in out.iter_mut().enumerate() {
-        let src = &r.planes[c].data;
+        let src = r.planes[c].data();
         plane
-            .data
+            .data_mut()
             .par_chunks_mut(cw)
             .skip(r.y0)
             .take(h)
@@ -301,7 +301,7 @@ impl Mixing {
 /// Cuts the reference frame out of a canvas plane.
 fn crop(p: &Plane, cv: Canvas, w: usize, h: usize) -> Plane {
     let m = cv.margin;
-    Plane::from_fn(w, h, 1, |x, y, _| p.data[(y + m) * p.width + x + m])
+    Plane::from_fn(w, h, 1, |x, y, _| p.data()[(y + m) * p.width() + x + m])
 }
 
 /// The stack plus what tests and tools may want beyond it.
@@ -363,7 +363,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
                 let Some(x) = (r.x0 + rx).checked_sub(cv.margin).filter(|&x| x < w) else {
                     continue;
                 };
-                if r.planes[3].data[ry * r.width() + rx] > 0.5 {
+                if r.planes[3].data()[ry * r.width() + rx] > 0.5 {
                     owner[y * w + x] = li;
                 }
             }
@@ -373,7 +373,9 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
         .iter()
         .map(|c| {
             let mut t = crop(c, cv, w, h);
-            t.data.iter_mut().for_each(|v| *v = light.to_display(*v));
+            t.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = light.to_display(*v));
             t
         })
         .collect();
@@ -423,7 +425,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
                         let (rx, ry) = ((r.x0 + x) as f64 - m, (r.y0 + y) as f64 - m);
                         optics.sigma_q(layer.depth.at(rx, ry), i) as f32
                     });
-                    blur_varying(r, &sig.data)
+                    blur_varying(r, sig.data())
                 }
             };
             composite(&mut canvas, &blurred);
@@ -538,15 +540,17 @@ fn expose(
     seed: u64,
     frame: usize,
 ) -> Image<u8> {
-    let (w, h) = (planes[0].width, planes[0].height);
+    let (w, h) = (planes[0].width(), planes[0].height());
     let mut rng = Rng::stream(seed, STREAM_NOISE + frame as u64);
     let s2 = sigma * sigma;
     let mut data = Vec::with_capacity(w * h * planes.len());
     for i in 0..w * h {
         for (p, gain) in planes.iter().zip(gain) {
             let v = match light {
-                Mixing::Display => p.data[i] as f64 * 255.0 * gain,
-                Mixing::Linear => light.to_display((p.data[i] as f64 * gain) as f32) as f64 * 255.0,
+                Mixing::Display => p.data()[i] as f64 * 255.0 * gain,
+                Mixing::Linear => {
+                    light.to_display((p.data()[i] as f64 * gain) as f32) as f64 * 255.0
+                }
             };
             let noisy = if sigma > 0.0 {
                 v + (s2 * (1.0 + v.max(0.0) / 255.0)).sqrt() * rng.normal()
@@ -599,9 +603,9 @@ mod tests {
         assert!(a
             .frames
             .iter()
-            .all(|f| (f.width, f.height, f.channels) == (160, 120, 3)));
-        assert_eq!((a.depth.channels, a.truth.channels), (1, 3));
-        assert!(a.depth.data.iter().all(|&d| d < 6));
+            .all(|f| (f.width(), f.height(), f.channels()) == (160, 120, 3)));
+        assert_eq!((a.depth.channels(), a.truth.channels()), (1, 3));
+        assert!(a.depth.data().iter().all(|&d| d < 6));
     }
 
     #[test]
@@ -628,12 +632,12 @@ mod tests {
         let q = render_stack(&quiet(small(6, false)));
         let (f, t) = (&q.frames[2], &q.truth);
         let same = f
-            .data
+            .data()
             .iter()
-            .zip(&t.data)
+            .zip(t.data())
             .filter(|(a, b)| a.abs_diff(**b) <= 1)
             .count();
-        assert!(same as f64 > 0.15 * t.data.len() as f64);
+        assert!(same as f64 > 0.15 * t.data().len() as f64);
     }
 
     /// Pixels whose owner is `li` and every pixel within `r` (Chebyshev) has the same owner.
@@ -717,7 +721,7 @@ mod tests {
             let r = render_scene(&p, &scene).stack;
             let want = [179u8, 128, 77];
             for img in r.frames.iter().chain(std::iter::once(&r.truth)) {
-                for px in img.data.chunks_exact(3) {
+                for px in img.data().chunks_exact(3) {
                     for c in 0..3 {
                         assert!(px[c].abs_diff(want[c]) <= 1, "{px:?} handheld {handheld}");
                     }
@@ -739,7 +743,7 @@ mod tests {
         let r = render_scene(&p, &scene).stack;
         for img in r.frames.iter().chain(std::iter::once(&r.truth)) {
             assert!(img
-                .data
+                .data()
                 .chunks_exact(3)
                 .all(|px| px[0].abs_diff(179) <= 1 && px[1].abs_diff(128) <= 1));
         }
@@ -755,12 +759,12 @@ mod tests {
             ..quiet(small(13, false))
         });
         let mean_diff = |a: &Image<u8>, b: &Image<u8>| {
-            a.data
+            a.data()
                 .iter()
-                .zip(&b.data)
+                .zip(b.data())
                 .map(|(x, y)| x.abs_diff(*y) as f64)
                 .sum::<f64>()
-                / a.data.len() as f64
+                / a.data().len() as f64
         };
         assert!(mean_diff(&d.truth, &l.truth) < 0.5);
         assert!(mean_diff(&d.frames[0], &l.frames[0]) > 1.0);
@@ -774,7 +778,7 @@ mod tests {
         let r = render_scene(&p, &scene);
         let (w, h) = (160, 120);
         let s = &r.stack.steps;
-        let on = s.data.iter().filter(|&&v| v == 255).count();
+        let on = s.data().iter().filter(|&&v| v == 255).count();
         assert!(on > 100 && on < w * h / 5, "{on} step pixels");
         for y in 0..h {
             for x in 0..w {
@@ -955,9 +959,9 @@ mod tests {
         let noisy = render_stack(&p);
         let clean = render_stack(&quiet(p.clone()));
         let d: Vec<f64> = noisy.frames[1]
-            .data
+            .data()
             .iter()
-            .zip(&clean.frames[1].data)
+            .zip(clean.frames[1].data())
             .filter(|(_, &c)| c > 10 && c < 245)
             .map(|(&a, &b)| a as f64 - b as f64)
             .collect();
@@ -971,7 +975,7 @@ mod tests {
             let k = g.info[i].gain;
             assert!((0.8..=1.2).contains(&k));
             let (mut s1, mut s0) = (0.0, 0.0);
-            for (&a, &b) in f.data.iter().zip(&clean.frames[i].data) {
+            for (&a, &b) in f.data().iter().zip(clean.frames[i].data()) {
                 if b > 20 && b < 200 {
                     s1 += a as f64;
                     s0 += b as f64;

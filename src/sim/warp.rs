@@ -16,7 +16,7 @@ pub fn warp_affine(
 ) -> (Plane, Plane) {
     let mut out = vec![0.0f32; width * height];
     let mut cov = vec![0.0f32; width * height];
-    let (sw, sh) = (src.width as f64 - 1.0, src.height as f64 - 1.0);
+    let (sw, sh) = (src.width() as f64 - 1.0, src.height() as f64 - 1.0);
     out.par_chunks_mut(width)
         .zip(cov.par_chunks_mut(width))
         .enumerate()

@@ -122,7 +122,7 @@ pub fn estimate_exposure<T: Sample>(
     reference: &Image<T>,
     warp: &Warp,
 ) -> Vec<Exposure> {
-    let (w, h, ch) = (reference.width, reference.height, reference.channels);
+    let (w, h, ch) = (reference.width(), reference.height(), reference.channels());
     let stride = ((w * h) as f64 / SAMPLES as f64).sqrt().ceil().max(1.0) as usize;
     let (bx, by) = BLOCKS;
     let nb = bx * by;
@@ -130,7 +130,7 @@ pub fn estimate_exposure<T: Sample>(
     let mut count = vec![0u32; nb];
     let mut sums = vec![(0.0f64, 0.0f64); nb * ch];
     let clip = CLIPPED * T::MAX;
-    let (fw, fh) = (frame.width as f64, frame.height as f64);
+    let (fw, fh) = (frame.width() as f64, frame.height() as f64);
     // Each sampled column's block, worked out once rather than by a division per sample.
     let columns: Vec<(usize, usize)> = (stride / 2..w)
         .step_by(stride)
@@ -147,8 +147,8 @@ pub fn estimate_exposure<T: Sample>(
             if !(u > 0.0 && u < fw && v > 0.0 && v < fh) {
                 continue;
             }
-            let r = &reference.data[(y * w + x) * ch..][..ch];
-            let f = &frame.data[(v as usize * frame.width + u as usize) * ch..][..ch];
+            let r = &reference.data()[(y * w + x) * ch..][..ch];
+            let f = &frame.data()[(v as usize * frame.width() + u as usize) * ch..][..ch];
             if r.iter().chain(f).any(|s| s.to_f32() >= clip) {
                 continue;
             }
@@ -278,8 +278,8 @@ pub fn warp_frame_into<T: Sample>(
     );
     const GREY: usize = warp_lanes(1);
     const COLOUR: usize = warp_lanes(3);
-    let data = &mut out.data;
-    match reference.channels {
+    let data = out.data_mut();
+    match reference.channels() {
         1 => warp_channels::<T, 1, GREY>(frame, reference, warp, exposure, data, scratch),
         3 => warp_channels::<T, 3, COLOUR>(frame, reference, warp, exposure, data, scratch),
         n => panic!("frames have 1 or 3 channels, not {n}"),
@@ -308,8 +308,8 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
     data: &mut [T],
     src: &mut Vec<f32>,
 ) -> Coverage {
-    let w = reference.width;
-    let (fw, fh) = (frame.width, frame.height);
+    let w = reference.width();
+    let (fw, fh) = (frame.width(), frame.height());
     let scale = T::MAX;
     // v' = (v − offset·MAX) / gain as one multiply-add.
     let correct: [(f32, f32); C] = std::array::from_fn(|c| {
@@ -325,7 +325,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
     let reach = warp.field.as_ref().map_or(0.0, |f| f.reach(1.0));
     let band = band_rows(w as f64 * warp.affine.0[1][0].abs() + 2.0 * reach);
     let (table, raster) = (keys_table(), warp.raster(w));
-    let h = reference.height;
+    let h = reference.height();
     let mut spans = Vec::with_capacity(h);
     for y0 in (0..h).step_by(band) {
         let y1 = (y0 + band).min(h);
@@ -341,7 +341,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
         src.resize((end - first) * fw * L, 0.0);
         src[..(end - first) * fw * L]
             .par_chunks_mut(L << 14)
-            .zip(frame.data[first * fw * C..end * fw * C].par_chunks(C << 14))
+            .zip(frame.data()[first * fw * C..end * fw * C].par_chunks(C << 14))
             .for_each(|(d, s)| {
                 for (d, s) in d.chunks_exact_mut(L).zip(s.chunks_exact(C)) {
                     let (d, pad) = d.split_at_mut(C);
@@ -360,7 +360,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
         spans.par_extend(
             data[y0 * w * C..y1 * w * C]
                 .par_chunks_mut(w * C)
-                .zip(reference.data[y0 * w * C..y1 * w * C].par_chunks(w * C))
+                .zip(reference.data()[y0 * w * C..y1 * w * C].par_chunks(w * C))
                 .enumerate()
                 .map(|(k, (row, fallback))| rows.warp::<T, L>(y0 + k, row, fallback)),
         );
@@ -793,7 +793,7 @@ mod tests {
         let reference = textured(w, h, [1.0; 3], 0.0, 0.0);
         let frame = textured(w, h, [1.0; 3], 0.0, 3.0);
         let src: Vec<f32> = frame
-            .data
+            .data()
             .chunks_exact(3)
             .flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])
             .collect();
@@ -819,7 +819,7 @@ mod tests {
         };
         let (mut one, mut pairs) = (vec![0u8; w * 3], vec![0u8; w * 3]);
         for y in 0..h {
-            let fallback = &reference.data[y * w * 3..][..w * 3];
+            let fallback = &reference.data()[y * w * 3..][..w * 3];
             let a = rows.warp_body::<u8, 4>(y, &mut one, fallback);
             // SAFETY: the CPU has AVX, checked above.
             let b = unsafe { rows.warp_pairs_avx(y, &mut pairs, fallback) };

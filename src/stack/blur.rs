@@ -44,11 +44,10 @@ pub fn gaussian_blur_into(src: &Plane, sigma: f32, dst: &mut Plane) {
     if sigma <= 0.0 {
         return dst.clone_from(src);
     }
-    debug_assert_eq!(src.channels, 1);
-    let (w, h) = (src.width, src.height);
-    (dst.width, dst.height, dst.channels) = (w, h, 1);
-    dst.data.resize(w * h, 0.0);
-    blur_rows_into(&mut dst.data, w, h, &gaussian_half(sigma), || {
+    debug_assert_eq!(src.channels(), 1);
+    let (w, h) = (src.width(), src.height());
+    dst.resize(w, h, 1);
+    blur_rows_into(dst.data_mut(), w, h, &gaussian_half(sigma), || {
         PlaneRows(src)
     });
 }
@@ -67,9 +66,9 @@ pub fn gaussian_blur_channels(img: &Plane, sigma: f32) -> Plane {
 /// plain convolution the tests check the streamed blur's kernel against.
 #[cfg(test)]
 fn convolve_separable(src: &Plane, k: &[f32]) -> Plane {
-    debug_assert_eq!(src.channels, 1);
+    debug_assert_eq!(src.channels(), 1);
     debug_assert!(k.len() % 2 == 1 && k.iter().eq(k.iter().rev()));
-    let (w, h) = (src.width, src.height);
+    let (w, h) = (src.width(), src.height());
     let mut dst = vec![0.0f32; w * h];
     blur_rows_into(&mut dst, w, h, &k[k.len() / 2..], || PlaneRows(src));
     Plane::from_vec(w, h, 1, dst)
@@ -124,8 +123,8 @@ pub(crate) struct PlaneRows<'a>(pub &'a Plane);
 
 impl Rows for PlaneRows<'_> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
-        let w = self.0.width;
-        out.copy_from_slice(&self.0.data[y * w..y * w + w]);
+        let w = self.0.width();
+        out.copy_from_slice(&self.0.data()[y * w..y * w + w]);
     }
 }
 
@@ -329,8 +328,8 @@ fn block<const LANES: usize>(src: &[f32], at: usize) -> &[f32; LANES] {
 /// edges included), straight from the interleaved samples. An output row's sums are formed
 /// together, a source row at a time, all channels' sums over a block's row in one pass.
 pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
-    let (w, h, data) = (src.width, src.height, &src.data);
-    let small = match src.channels {
+    let (w, h, data) = (src.width(), src.height(), src.data());
+    let small = match src.channels() {
         1 => downsample_channels::<T, 1>(data, w, h, factor),
         2 => downsample_channels::<T, 2>(data, w, h, factor),
         3 => downsample_channels::<T, 3>(data, w, h, factor),
@@ -338,7 +337,7 @@ pub fn downsample_area<T: Sample>(src: &Image<T>, factor: usize) -> Image<T> {
         n => panic!("images have 1 to 4 channels, not {n}"),
     };
     let f = factor.max(1);
-    Image::from_vec(w.div_ceil(f), h.div_ceil(f), src.channels, small)
+    Image::from_vec(w.div_ceil(f), h.div_ceil(f), src.channels(), small)
 }
 
 /// [`downsample_area`] of one channel's `width`×`height` samples held in a slice, not an image:
@@ -435,7 +434,7 @@ mod tests {
             assert_eq!(got, mean.round() as u16, "block {i}");
         }
         let image = Image::from_vec(w, h, 1, data.clone());
-        assert_eq!(downsample_area(&image, f).data, small);
+        assert_eq!(downsample_area(&image, f).data(), small);
         assert_eq!(downsample_samples(&data, w, h, 1), data);
     }
 
@@ -443,14 +442,14 @@ mod tests {
     fn blur_keeps_constant_and_mean() {
         let p = Plane::from_fn(37, 23, 1, |x, y, _| ((x * 7 + y * 13) % 11) as f32);
         let b = gaussian_blur(&p, 2.0);
-        let mean = |q: &Plane| q.data.iter().sum::<f32>() / q.data.len() as f32;
+        let mean = |q: &Plane| q.data().iter().sum::<f32>() / q.data().len() as f32;
         assert!((mean(&p) - mean(&b)).abs() < 0.2);
         let c = gaussian_blur(&Plane::from_fn(9, 9, 1, |_, _, _| 3.0), 1.5);
-        assert!(c.data.iter().all(|v| (v - 3.0).abs() < 1e-5));
+        assert!(c.data().iter().all(|v| (v - 3.0).abs() < 1e-5));
         // Blurring must reduce variance of a high-frequency pattern.
         let var = |q: &Plane| {
             let m = mean(q);
-            q.data.iter().map(|v| (v - m) * (v - m)).sum::<f32>()
+            q.data().iter().map(|v| (v - m) * (v - m)).sum::<f32>()
         };
         assert!(var(&b) < 0.5 * var(&p));
     }
@@ -458,21 +457,21 @@ mod tests {
     /// The direct clamped-index convolution the streaming one must match.
     fn reference(src: &Plane, k: &[f32]) -> Plane {
         let (w, h, r) = (
-            src.width as isize,
-            src.height as isize,
+            src.width() as isize,
+            src.height() as isize,
             k.len() as isize / 2,
         );
         let at = |p: &Plane, x: isize, y: isize| {
             p.at(x.clamp(0, w - 1) as usize, y.clamp(0, h - 1) as usize, 0)
         };
         let tap = |i: usize| (k[i], i as isize - r);
-        let tmp = Plane::from_fn(src.width, src.height, 1, |x, y, _| {
+        let tmp = Plane::from_fn(src.width(), src.height(), 1, |x, y, _| {
             (0..k.len())
                 .map(tap)
                 .map(|(kv, d)| kv * at(src, x as isize + d, y as isize))
                 .sum()
         });
-        Plane::from_fn(src.width, src.height, 1, |x, y, _| {
+        Plane::from_fn(src.width(), src.height(), 1, |x, y, _| {
             (0..k.len())
                 .map(tap)
                 .map(|(kv, d)| kv * at(&tmp, x as isize, y as isize + d))
@@ -489,9 +488,9 @@ mod tests {
                 let k = gaussian_kernel(sigma);
                 let (got, want) = (convolve_separable(&p, &k), reference(&p, &k));
                 let err = got
-                    .data
+                    .data()
                     .iter()
-                    .zip(&want.data)
+                    .zip(want.data())
                     .map(|(a, b)| (a - b).abs())
                     .fold(0.0, f32::max);
                 assert!(err < 1e-5, "{w}x{h} sigma {sigma}: max error {err}");
@@ -508,12 +507,12 @@ mod tests {
         let p = Plane::from_fn(w, h, 1, |x, y, _| ((x * 31 + y * 17) % 13) as f32 / 13.0);
         let half = gaussian_half(2.0);
         let mut whole = Plane::new(w, h, 1);
-        blur_rows_into(&mut whole.data, w, h, &half, || PlaneRows(&p));
+        blur_rows_into(whole.data_mut(), w, h, &half, || PlaneRows(&p));
         let mut blur = RowBlur::new(PlaneRows(&p), w, h, &half);
         let mut row = vec![0.0; w];
         for y in [0, 1, 3, 4, 20, 21, 22, 40, 59, 60] {
             blur.row(y, &mut row);
-            assert_eq!(row, whole.data[y * w..][..w], "row {y}");
+            assert_eq!(row, whole.data()[y * w..][..w], "row {y}");
         }
     }
 
@@ -533,13 +532,13 @@ mod tests {
     fn downsample_averages_blocks() {
         let p = Plane::from_fn(5, 3, 1, |x, _, _| x as f32);
         let d = downsample_area(&p, 2);
-        assert_eq!((d.width, d.height), (3, 2));
-        assert_eq!(d.data, vec![0.5, 2.5, 4.0, 0.5, 2.5, 4.0]);
+        assert_eq!((d.width(), d.height()), (3, 2));
+        assert_eq!(d.data(), vec![0.5, 2.5, 4.0, 0.5, 2.5, 4.0]);
         let rgb = Image::<u8>::from_fn(5, 3, 3, |x, y, c| (10 * x + 3 * y + 50 * c) as u8);
         let d = downsample_area(&rgb, 2);
-        assert_eq!((d.width, d.height, d.channels), (3, 2, 3));
+        assert_eq!((d.width(), d.height(), d.channels()), (3, 2, 3));
         // Block (1, 0): x 2..4, y 0..2, so 25 + 1.5 + 50c, rounded half away from zero.
-        assert_eq!(d.data[3..6], [27, 77, 127]);
-        assert_eq!(d.data[15..], [46, 96, 146]);
+        assert_eq!(d.data()[3..6], [27, 77, 127]);
+        assert_eq!(d.data()[15..], [46, 96, 146]);
     }
 }

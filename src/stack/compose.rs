@@ -64,9 +64,9 @@ impl FrameBuffers {
     fn fill<T: Sample>(&mut self, samples: &[T], select: &Select, i: usize, frames: usize) {
         // `Image::to_planes` in one parallel pass.
         let (n, scale) = (self.bands.len(), 1.0 / T::MAX);
-        let (width, height) = (self.bands[0][0].width, self.bands[0][0].height);
+        let (width, height) = (self.bands[0][0].width(), self.bands[0][0].height());
         let (levels0, strip) = (
-            self.bands.iter_mut().map(|b| &mut b[0].data[..]),
+            self.bands.iter_mut().map(|b| &mut b[0].data_mut()[..]),
             strip_rows(height) * width,
         );
         chunk_groups(levels0, strip)
@@ -82,7 +82,7 @@ impl FrameBuffers {
         // Channels in parallel too: the coarse levels are too small to occupy every thread.
         self.bands.par_iter_mut().for_each(|b| fill_laplacian(b));
         if let Select::Labels(labels, _, order) = select {
-            let m0 = &mut self.mask[0].data;
+            let m0 = self.mask[0].data_mut();
             m0.par_iter_mut()
                 .zip(*labels)
                 .for_each(|(m, &l)| *m = (l as usize == i) as u8 as f32);
@@ -90,9 +90,10 @@ impl FrameBuffers {
             if self.mask.len() > 1 {
                 let (r, m0) = (&mut self.reach, &self.mask[0]);
                 let half = gaussian_half(FINE_REACH);
-                blur_rows_into(&mut r.data, r.width, r.height, &half, || PlaneRows(m0));
+                let (w, h) = (r.width(), r.height());
+                blur_rows_into(r.data_mut(), w, h, &half, || PlaneRows(m0));
                 if let Some(order) = order {
-                    keep_out_of_nearer(&mut r.data, labels, *order, i, frames);
+                    keep_out_of_nearer(r.data_mut(), labels, *order, i, frames);
                 }
             }
         }
@@ -102,14 +103,14 @@ impl FrameBuffers {
     fn present(&self, l: usize) -> Option<&[f32]> {
         match (l, self.mask.is_empty()) {
             (_, true) => None,
-            (0, false) => Some(&self.reach.data),
-            (_, false) => Some(&self.mask[l].data),
+            (0, false) => Some(self.reach.data()),
+            (_, false) => Some(self.mask[l].data()),
         }
     }
 
     /// The weight of the frame's residual (`None`: the plain average, 1/n).
     fn residual_weight(&self) -> Option<&[f32]> {
-        self.mask.last().map(|m| &m.data[..])
+        self.mask.last().map(|m| m.data())
     }
 }
 
@@ -136,7 +137,7 @@ pub fn compose<T: Sample>(
     rows: usize,
     progress: &dyn Progress,
 ) -> (Image<T>, Vec<u8>) {
-    let (w, h, channels) = (frames[0].width, frames[0].height, frames[0].channels);
+    let (w, h, channels) = (frames[0].width(), frames[0].height(), frames[0].channels());
     let levels = pyramid_levels(
         w,
         h,
@@ -174,7 +175,7 @@ pub fn compose<T: Sample>(
         let (part, part_choice) = compose_band(
             frames
                 .iter()
-                .map(|f| &f.data[e0 * w * channels..e1 * w * channels])
+                .map(|f| &f.data()[e0 * w * channels..e1 * w * channels])
                 .collect(),
             (w, e1 - e0, channels),
             &select,
@@ -183,8 +184,8 @@ pub fn compose<T: Sample>(
             progress,
         );
         let (keep, skip) = (band.keep.len() * w, (band.keep.start - e0) * w);
-        image.data[band.keep.start * w * channels..][..keep * channels]
-            .copy_from_slice(&part.data[skip * channels..][..keep * channels]);
+        image.data_mut()[band.keep.start * w * channels..][..keep * channels]
+            .copy_from_slice(&part.data()[skip * channels..][..keep * channels]);
         choice[band.keep.start * w..][..keep].copy_from_slice(&part_choice[skip..][..keep]);
     }
     (image, choice)
@@ -258,18 +259,18 @@ fn compose_band<T: Sample>(
     let mut out: Vec<Vec<Plane>> = frame.bands.iter().map(|b| zeros_like(b)).collect();
     let mut best: Vec<Plane> = frame.bands[0][..top]
         .iter()
-        .map(|b| Plane::from_vec(b.width, b.height, 1, vec![-1.0; b.pixels()]))
+        .map(|b| Plane::from_vec(b.width(), b.height(), 1, vec![-1.0; b.pixels()]))
         .collect();
     let mut choice = vec![0u8; w * h];
     for &i in used {
         frame.fill(frames[i], select, i, n);
         for (l, best) in best.iter_mut().enumerate() {
-            let out = out.iter_mut().map(|o| &mut o[l].data[..]).collect();
+            let out = out.iter_mut().map(|o| &mut o[l].data_mut()[..]).collect();
             let choice = (l == 0).then_some(&mut choice[..]);
             select_level(&frame, l, best, out, choice, i as u8);
         }
         for (o, b) in out.iter_mut().zip(&frame.bands) {
-            let (o, v) = (&mut o[top].data, &b[top].data);
+            let (o, v) = (o[top].data_mut(), b[top].data());
             match frame.residual_weight() {
                 Some(m) => (o, v, m).into_par_iter().for_each(|(o, v, m)| *o += v * m),
                 None => {
@@ -298,9 +299,9 @@ fn select_level(
     choice: Option<&mut [u8]>,
     label: u8,
 ) {
-    let (w, h) = (best.width, best.height);
+    let (w, h) = (best.width(), best.height());
     let strip = strip_rows(h) * w;
-    let bands: Vec<&[f32]> = frame.bands.iter().map(|b| &b[l].data[..]).collect();
+    let bands: Vec<&[f32]> = frame.bands.iter().map(|b| b[l].data()).collect();
     let present = frame.present(l);
     let half = gaussian_half(1.0);
     let outs = chunk_groups(out, strip);
@@ -308,7 +309,7 @@ fn select_level(
         Some(c) => c.chunks_mut(strip).map(Some).collect(),
         None => outs.iter().map(|_| None).collect(),
     };
-    (outs, choices, best.data.par_chunks_mut(strip))
+    (outs, choices, best.data_mut().par_chunks_mut(strip))
         .into_par_iter()
         .enumerate()
         .for_each(|(s, (mut outs, mut choice, best))| {
@@ -381,12 +382,12 @@ fn chunk_groups<'a, T>(
 
 /// `Image::from_planes`, parallel over rows.
 fn interleave<T: Sample>(planes: &[Plane]) -> Image<T> {
-    let (w, h, n) = (planes[0].width, planes[0].height, planes.len());
+    let (w, h, n) = (planes[0].width(), planes[0].height(), planes.len());
     let mut data = vec![T::default(); w * h * n];
     data.par_chunks_mut(w * n).enumerate().for_each(|(y, row)| {
         for (x, px) in row.chunks_exact_mut(n).enumerate() {
             for (s, p) in px.iter_mut().zip(planes) {
-                *s = T::from_f32(p.data[y * w + x] * T::MAX);
+                *s = T::from_f32(p.data()[y * w + x] * T::MAX);
             }
         }
     });
@@ -431,9 +432,9 @@ mod tests {
             &NoProgress,
         );
         let err = a
-            .data
+            .data()
             .iter()
-            .zip(&out.data)
+            .zip(out.data())
             .map(|(x, y)| x.abs_diff(*y))
             .max()
             .unwrap();
@@ -505,7 +506,7 @@ mod tests {
         assert!(picked > 48 * 48 * 9 / 10, "picked {picked}");
         let diff = (0..64 * 64)
             .filter(|&p| inner(p))
-            .map(|p| (out.data[p] as i32 - tex.data[p] as i32).abs())
+            .map(|p| (out.data()[p] as i32 - tex.data()[p] as i32).abs())
             .max()
             .unwrap();
         assert!(diff < 40, "max diff {diff}");

@@ -43,7 +43,7 @@ pub const AMP_SCALE: f32 = 65535.0;
 /// One streaming pass: the two blurs feed DoG² rows straight into the window blur, whose rows
 /// are quantised as they come, so the only full-size buffer is the result.
 pub fn focus_amplitude(luma: &Plane, p: &FocusParams) -> Vec<u16> {
-    amplitude(PlaneRows(luma), luma.width, luma.height, p)
+    amplitude(PlaneRows(luma), luma.width(), luma.height(), p)
 }
 
 /// [`focus_amplitude`] of the luma of `frame`'s rows `rows`, each luma row made as the blurs
@@ -57,7 +57,7 @@ pub fn frame_focus_amplitude<T: Sample>(
         image: frame,
         first: rows.start,
     };
-    amplitude(source, frame.width, rows.len(), p)
+    amplitude(source, frame.width(), rows.len(), p)
 }
 
 /// [`focus_amplitude`] of the `w`×`h` rows of `src`.
@@ -198,14 +198,14 @@ mod tests {
                 gaussian_blur(&luma, p.sigma_coarse),
             );
             let dog: Vec<f32> = fine
-                .data
+                .data()
                 .iter()
-                .zip(&coarse.data)
+                .zip(coarse.data())
                 .map(|(f, c)| (f - c) * (f - c))
                 .collect();
             let energy = gaussian_blur(&Plane::from_vec(83, 141, 1, dog), p.window);
             let want = energy
-                .data
+                .data()
                 .iter()
                 .map(|e| (e.max(0.0).sqrt() * AMP_SCALE).round() as i32);
             let err = focus_amplitude(&luma, &p)

@@ -86,7 +86,7 @@ pub fn validate<T>(frames: &[Image<T>], reference: usize) -> Result<(), FuseErro
         n if n > 255 => return Err(FuseError::TooManyFrames(n)),
         _ => {}
     }
-    let geom = |f: &Image<T>| (f.width, f.height, f.channels);
+    let geom = |f: &Image<T>| (f.width(), f.height(), f.channels());
     let expected = geom(&frames[0]);
     if let Some((frame, f)) = frames.iter().enumerate().find(|(_, f)| geom(f) != expected) {
         return Err(FuseError::Mismatch {
@@ -146,7 +146,7 @@ pub fn fuse<T: Sample>(
     let coverage = match &alignment {
         Some(a) => &a.coverage,
         None => {
-            full = vec![Coverage::full(frames[0].width, frames[0].height); frames.len()];
+            full = vec![Coverage::full(frames[0].width(), frames[0].height()); frames.len()];
             &full
         }
     };
@@ -227,9 +227,9 @@ pub fn fuse<T: Sample>(
 fn stack_of<T>(frames: &[Image<T>]) -> Stack {
     Stack {
         frames: frames.len(),
-        width: frames[0].width,
-        height: frames[0].height,
-        channels: frames[0].channels,
+        width: frames[0].width(),
+        height: frames[0].height(),
+        channels: frames[0].channels(),
         sample_bytes: size_of::<T>(),
     }
 }
@@ -251,7 +251,7 @@ fn align<T: Sample>(
             Placement::Direct | Placement::Chained { .. } => {
                 estimate_exposure(f, r, &warp_of(&registration, i))
             }
-            _ => vec![Exposure::SAME; r.channels],
+            _ => vec![Exposure::SAME; r.channels()],
         })
         .collect();
     let coverage = warp_onto_reference(frames, &registration, &exposure, reference, progress);
@@ -276,7 +276,7 @@ pub fn warp_onto_reference<T: Sample>(
 ) -> Vec<Coverage> {
     let n = frames.len();
     progress.stage(Stage::Warp, n - 1);
-    let (w, h) = (frames[0].width, frames[0].height);
+    let (w, h) = (frames[0].width(), frames[0].height());
     let mut coverage = vec![Coverage::full(w, h); n];
     let (before, rest) = frames.split_at_mut(reference);
     let (r, after) = rest
@@ -312,11 +312,11 @@ fn warp_of(registration: &Registration, i: usize) -> Warp {
 
 /// The `rect` of an image and of its label map.
 fn crop_to<T: Sample>(image: &Image<T>, labels: &[u8], rect: Rect) -> (Image<T>, Vec<u8>) {
-    let (w, ch) = (image.width, image.channels);
+    let (w, ch) = (image.width(), image.channels());
     let rows = rect.y..rect.y + rect.height;
     let data = rows
         .clone()
-        .flat_map(|y| &image.data[(y * w + rect.x) * ch..][..rect.width * ch])
+        .flat_map(|y| &image.data()[(y * w + rect.x) * ch..][..rect.width * ch])
         .copied()
         .collect();
     let labels = rows

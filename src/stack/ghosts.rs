@@ -98,7 +98,7 @@ impl GhostReport {
 pub fn check<T: Sample, U: Sample>(output: &Image<T>, frames: &[Image<U>]) -> GhostReport {
     let out = to_width(&output.luma(), WIDTH);
     let smooth_out = gaussian_blur(&out, SMOOTH);
-    let (w, h) = (out.width, out.height);
+    let (w, h) = (out.width(), out.height());
     let mut alignments = Vec::with_capacity(frames.len());
     let mut aligned = Vec::with_capacity(frames.len());
     for f in frames {
@@ -149,8 +149,8 @@ pub fn check<T: Sample, U: Sample>(output: &Image<T>, frames: &[Image<U>]) -> Gh
 
 /// `p` resampled to `width` px wide (area-like: smoothed before it is shrunk).
 fn to_width(p: &Plane, width: usize) -> Plane {
-    let s = width as f32 / p.width as f32;
-    let height = ((p.height as f32 * s).round() as usize).max(1);
+    let s = width as f32 / p.width() as f32;
+    let height = ((p.height() as f32 * s).round() as usize).max(1);
     let src = if s < 1.0 {
         gaussian_blur(p, 0.5 / s)
     } else {
@@ -165,7 +165,7 @@ fn to_width(p: &Plane, width: usize) -> Plane {
 fn stats(p: &Plane, x0: usize, y0: usize, n: usize) -> (f32, f32) {
     let (mut s, mut s2) = (0.0f64, 0.0f64);
     for y in y0..y0 + n {
-        for &v in &p.data[y * p.width + x0..y * p.width + x0 + n] {
+        for &v in &p.data()[y * p.width() + x0..y * p.width() + x0 + n] {
             s += v as f64;
             s2 += (v as f64) * (v as f64);
         }
@@ -195,7 +195,7 @@ fn best_ncc(
     for dy in -r..=r {
         for dx in -r..=r {
             let (bx, by) = (near.0 + dx, near.1 + dy);
-            if bx < 0 || by < 0 || bx as usize + n > b.width || by as usize + n > b.height {
+            if bx < 0 || by < 0 || bx as usize + n > b.width() || by as usize + n > b.height() {
                 continue;
             }
             let (bx, by) = (bx as usize, by as usize);
@@ -205,8 +205,8 @@ fn best_ncc(
             }
             let mut cov = 0.0f64;
             for y in 0..n {
-                let ra = &a.data[(y0 + y) * a.width + x0..][..n];
-                let rb = &b.data[(by + y) * b.width + bx..][..n];
+                let ra = &a.data()[(y0 + y) * a.width() + x0..][..n];
+                let rb = &b.data()[(by + y) * b.width() + bx..][..n];
                 for (&u, &v) in ra.iter().zip(rb) {
                     cov += ((u - ma) * (v - mb)) as f64;
                 }
@@ -224,15 +224,15 @@ fn best_ncc(
 /// matched at a quarter of the resolution over a wide window, refined at full resolution, then a
 /// robust affine through the block centres. None with too few matches.
 fn align(out: &Plane, frame: &Plane) -> Option<Affine> {
-    let quarter = |p: &Plane| to_width(p, p.width / 4);
+    let quarter = |p: &Plane| to_width(p, p.width() / 4);
     let (oq, fq) = (quarter(out), quarter(frame));
     let b = COARSE_BLOCK;
     let r = COARSE_RADIUS as usize;
     let mut starts = Vec::new();
     let mut y = r;
-    while y + b + r <= oq.height {
+    while y + b + r <= oq.height() {
         let mut x = r;
-        while x + b + r <= oq.width {
+        while x + b + r <= oq.width() {
             starts.push((x, y));
             x += b / 2;
         }

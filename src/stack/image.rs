@@ -69,13 +69,80 @@ impl Sample for f32 {
     }
 }
 
-/// An interleaved image: `channels` samples per pixel, rows top to bottom.
+/// An interleaved image: `channels` samples per pixel, rows top to bottom. The fields are
+/// private so the buffer always holds exactly `width · height · channels` samples.
 #[derive(Debug, PartialEq)]
 pub struct Image<T> {
+    width: usize,
+    height: usize,
+    channels: usize,
+    data: Vec<T>,
+}
+
+/// Why a buffer cannot be an image of the given size.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("image buffer holds {len} samples, {width}x{height}x{channels} needs {needed}")]
+pub struct ImageSizeError {
     pub width: usize,
     pub height: usize,
     pub channels: usize,
-    pub data: Vec<T>,
+    pub len: usize,
+    pub needed: usize,
+}
+
+impl<T> Image<T> {
+    #[inline]
+    pub fn width(&self) -> usize {
+        self.width
+    }
+    #[inline]
+    pub fn height(&self) -> usize {
+        self.height
+    }
+    #[inline]
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+    /// The samples, interleaved, rows top to bottom.
+    #[inline]
+    pub fn data(&self) -> &[T] {
+        &self.data
+    }
+    /// The samples to write in place; the length cannot change.
+    #[inline]
+    pub fn data_mut(&mut self) -> &mut [T] {
+        &mut self.data
+    }
+    /// The buffer, giving the image up.
+    pub fn into_data(self) -> Vec<T> {
+        self.data
+    }
+    /// An image over `data`, or why its length does not fit the size.
+    pub fn from_raw(
+        width: usize,
+        height: usize,
+        channels: usize,
+        data: Vec<T>,
+    ) -> Result<Self, ImageSizeError> {
+        let needed = width
+            .checked_mul(height)
+            .and_then(|p| p.checked_mul(channels));
+        match needed {
+            Some(n) if n == data.len() => Ok(Self {
+                width,
+                height,
+                channels,
+                data,
+            }),
+            _ => Err(ImageSizeError {
+                width,
+                height,
+                channels,
+                len: data.len(),
+                needed: needed.unwrap_or(usize::MAX),
+            }),
+        }
+    }
 }
 
 impl<T: Clone> Clone for Image<T> {
@@ -107,15 +174,20 @@ impl<T: Sample> Image<T> {
         )
     }
 
-    /// Panics when the buffer length does not match: a programming error, not bad input.
+    /// Panics when the buffer length does not match: for buffers the caller sized itself
+    /// (a programming error, not bad input); [`Image::from_raw`] is the fallible form.
     pub fn from_vec(width: usize, height: usize, channels: usize, data: Vec<T>) -> Self {
-        assert_eq!(data.len(), width * height * channels, "image buffer size");
-        Self {
-            width,
-            height,
-            channels,
-            data,
+        match Self::from_raw(width, height, channels, data) {
+            Ok(image) => image,
+            Err(e) => panic!("{e}"),
         }
+    }
+
+    /// Gives the image another size in place, keeping its allocation where it is large
+    /// enough: the samples already there stay, new ones are the default (as `Vec::resize`).
+    pub fn resize(&mut self, width: usize, height: usize, channels: usize) {
+        (self.width, self.height, self.channels) = (width, height, channels);
+        self.data.resize(width * height * channels, T::default());
     }
 
     pub fn from_fn(

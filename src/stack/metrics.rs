@@ -11,7 +11,7 @@ use rayon::prelude::*;
 /// large share of a fuse's freshly faulted (zeroed) pages.
 pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
     const BAND: usize = 64;
-    let (w, h) = (img.width, img.height);
+    let (w, h) = (img.width(), img.height());
     if w < 3 || h < 3 {
         return 0.0;
     }
@@ -32,11 +32,11 @@ pub fn tenengrad<T: Sample>(img: &Image<T>) -> f64 {
 /// time, for a figure only the log shows.
 fn gradient_sum(l: &Plane) -> f64 {
     const LANES: usize = 8;
-    let w = l.width;
+    let w = l.width();
     let mut s = 0.0f64;
     let mut mag = vec![0.0f32; w - 2];
-    for y in 1..l.height - 1 {
-        let row = |dy: usize| &l.data[(y + dy - 1) * w..][..w];
+    for y in 1..l.height() - 1 {
+        let row = |dy: usize| &l.data()[(y + dy - 1) * w..][..w];
         let (a, b, c) = (row(0), row(1), row(2));
         for (x, m) in mag.iter_mut().enumerate() {
             // Pixel x + 1 from its neighbours at x, x + 1 and x + 2.
@@ -58,7 +58,7 @@ fn gradient_sum(l: &Plane) -> f64 {
 /// PSNR in dB of `a` against `b` (same geometry), over the interior `margin` pixels in from each
 /// edge, on each type's full scale.
 pub fn psnr<T: Sample, U: Sample>(a: &Image<T>, b: &Image<U>, margin: usize) -> f64 {
-    let (w, h) = (a.width, a.height);
+    let (w, h) = (a.width(), a.height());
     psnr_where(a, b, |x, y| {
         (margin..w.saturating_sub(margin)).contains(&x)
             && (margin..h.saturating_sub(margin)).contains(&y)
@@ -73,7 +73,7 @@ pub fn psnr_where<T: Sample, U: Sample>(
     keep: impl Fn(usize, usize) -> bool,
 ) -> f64 {
     assert!(a.same_geometry(b), "psnr of images of different geometry");
-    let (w, h, ch) = (a.width, a.height, a.channels);
+    let (w, h, ch) = (a.width(), a.height(), a.channels());
     let mut se = 0.0f64;
     let mut n = 0usize;
     for y in 0..h {
@@ -93,7 +93,7 @@ pub fn psnr_where<T: Sample, U: Sample>(
 /// `steps` (one channel), row-major. With `radius` = 3σ of the largest defocus blur, the band
 /// holds every pixel a defocused near object can spill onto (halos).
 pub fn step_band(steps: &Image<u8>, radius: f64) -> Vec<bool> {
-    let (w, h) = (steps.width, steps.height);
+    let (w, h) = (steps.width(), steps.height());
     let r = radius.max(0.0).floor() as isize;
     let r2 = radius * radius;
     let mut band = vec![false; w * h];
@@ -132,7 +132,7 @@ pub fn depth_oracle(
     at: impl Fn(usize, usize, usize) -> (f32, f32) + Sync,
     undo: impl Fn(usize, usize, f32) -> f32 + Sync,
 ) -> Image<u8> {
-    let w = frames[0].width;
+    let w = frames[0].width();
     let one = |x: usize, y: usize| {
         let k = labels[y * w + x] as usize;
         k..k + 1
@@ -171,7 +171,7 @@ fn oracle(
     error: impl Fn(usize, usize, &[u8]) -> u32 + Sync,
 ) -> Image<u8> {
     let f0 = &frames[0];
-    let (w, h, ch) = (f0.width, f0.height, f0.channels);
+    let (w, h, ch) = (f0.width(), f0.height(), f0.channels());
     let mut data = vec![0u8; w * h * ch];
     data.par_chunks_mut(w * ch)
         .enumerate()
@@ -234,7 +234,7 @@ mod tests {
     #[test]
     fn band_reaches_radius_around_steps() {
         let mut steps = Image::<u8>::new(30, 20, 1);
-        steps.data[10 * 30 + 15] = 255;
+        steps.data_mut()[10 * 30 + 15] = 255;
         let band = step_band(&steps, 3.0);
         assert_eq!(band.iter().filter(|&&b| b).count(), 29); // lattice points in a radius-3 disc
         assert!(band[10 * 30 + 18] && band[13 * 30 + 15] && !band[12 * 30 + 18]);
@@ -274,9 +274,9 @@ mod tests {
         };
         let at = |_: usize, x: usize, y: usize| (x as f32, y as f32);
         let o = best_frame_oracle(&[off(false), off(true)], &truth, at, |_, _, v| v);
-        assert_eq!(o.data, truth.data);
+        assert_eq!(o.data(), truth.data());
         // One frame alone is what it is, wherever it is off.
         let o = best_frame_oracle(&[off(true)], &truth, at, |_, _, v| v);
-        assert_eq!(o.data, off(true).data);
+        assert_eq!(o.data(), off(true).data());
     }
 }

@@ -164,11 +164,11 @@ pub fn focus_order<T: Sample>(
     let Some(f0) = frames.first() else {
         return OrderEvidence::decide(0, 0.0, 0.0);
     };
-    let (w, h) = (f0.width, f0.height);
+    let (w, h) = (f0.width(), f0.height());
     let fits = labels.len() == w * h
         && coverage.len() == frames.len()
         && coverage.iter().all(|c| c.spans.len() == h)
-        && frames.iter().all(|f| f.width == w && f.height == h);
+        && frames.iter().all(|f| f.width() == w && f.height() == h);
     if !fits {
         return OrderEvidence::decide(0, 0.0, 0.0);
     }
@@ -245,7 +245,7 @@ impl<T: Sample> Edges<'_, T> {
             let f = &self.frames[k];
             let v = |i: usize, c: usize| f.at(at(i).0, at(i).1, c).to_f32();
             let most = steps
-                .flat_map(|i| (0..f.channels).map(move |c| (v(i, c) - v(i - 1, c)).abs()))
+                .flat_map(|i| (0..f.channels()).map(move |c| (v(i, c) - v(i - 1, c)).abs()))
                 .fold(0.0f32, f32::max);
             most / T::MAX
         };

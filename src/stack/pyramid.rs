@@ -27,11 +27,11 @@ pub trait RowSource: Sync {
 
 impl RowSource for Plane {
     fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+        (self.width(), self.height())
     }
 
     fn row<'a>(&'a self, y: usize, _: &'a mut [f32]) -> &'a [f32] {
-        &self.data[y * self.width..][..self.width]
+        &self.data()[y * self.width()..][..self.width()]
     }
 }
 
@@ -119,7 +119,7 @@ pub fn expand(p: &Plane, w: usize, h: usize) -> Plane {
 /// Laplacian bands and collapses are formed in place without a full-size expanded plane.
 /// Streams like `reduce`, with a ring of the three x-expanded source rows an output row needs.
 fn expand_with(p: &Plane, w: usize, h: usize, out: &mut [f32], f: impl Fn(&mut f32, f32) + Sync) {
-    let (sw, sh) = (p.width, p.height);
+    let (sw, sh) = (p.width(), p.height());
     let clamp = |s: usize| s.min(sh - 1);
     par_strips(out, w, h, |y0, strip| {
         // Source row s, expanded along x, lives in slot s % 3.
@@ -130,7 +130,7 @@ fn expand_with(p: &Plane, w: usize, h: usize, out: &mut [f32], f: impl Fn(&mut f
             let i = y / 2;
             while next <= clamp(i + 1) {
                 expand_row(
-                    &p.data[next * sw..][..sw],
+                    &p.data()[next * sw..][..sw],
                     &mut ring[next % 3 * w..][..w],
                     &mut padded,
                 );
@@ -179,7 +179,7 @@ pub(crate) fn with_levels(p: Plane, levels: usize) -> Vec<Plane> {
     pyr.push(p);
     for _ in 1..levels {
         let last = pyr.last().unwrap();
-        let next = Plane::new(last.width.div_ceil(2), last.height.div_ceil(2), 1);
+        let next = Plane::new(last.width().div_ceil(2), last.height().div_ceil(2), 1);
         pyr.push(next);
     }
     pyr
@@ -189,7 +189,7 @@ pub(crate) fn with_levels(p: Plane, levels: usize) -> Vec<Plane> {
 pub(crate) fn fill_gaussian(pyr: &mut [Plane]) {
     for l in 1..pyr.len() {
         let (fine, coarse) = pyr.split_at_mut(l);
-        reduce_into(&fine[l - 1], &mut coarse[0].data);
+        reduce_into(&fine[l - 1], coarse[0].data_mut());
     }
 }
 
@@ -207,8 +207,8 @@ pub(crate) fn fill_laplacian(pyr: &mut [Plane]) {
         // Level l + 1 is still Gaussian here: bands are formed finest first.
         let (fine, coarse) = pyr.split_at_mut(l + 1);
         let band = &mut fine[l];
-        let (w, h) = (band.width, band.height);
-        expand_with(&coarse[0], w, h, &mut band.data, |b, u| *b -= u);
+        let (w, h) = (band.width(), band.height());
+        expand_with(&coarse[0], w, h, band.data_mut(), |b, u| *b -= u);
     }
 }
 
@@ -220,8 +220,8 @@ pub fn collapse(pyr: &[Plane]) -> Plane {
 pub(crate) fn collapse_of(mut pyr: Vec<Plane>) -> Plane {
     let mut acc = pyr.pop().expect("at least one level");
     while let Some(mut band) = pyr.pop() {
-        let (w, h) = (band.width, band.height);
-        expand_with(&acc, w, h, &mut band.data, |b, u| *b += u);
+        let (w, h) = (band.width(), band.height());
+        expand_with(&acc, w, h, band.data_mut(), |b, u| *b += u);
         acc = band;
     }
     acc
@@ -230,7 +230,7 @@ pub(crate) fn collapse_of(mut pyr: Vec<Plane>) -> Plane {
 /// A pyramid of zeros with the geometry of `like`.
 pub fn zeros_like(like: &[Plane]) -> Vec<Plane> {
     like.iter()
-        .map(|p| Plane::new(p.width, p.height, 1))
+        .map(|p| Plane::new(p.width(), p.height(), 1))
         .collect()
 }
 
@@ -247,9 +247,9 @@ mod tests {
         assert_eq!(pyr.len(), 4);
         let back = collapse(&pyr);
         let err = p
-            .data
+            .data()
             .iter()
-            .zip(&back.data)
+            .zip(back.data())
             .map(|(a, b)| (a - b).abs())
             .fold(0.0, f32::max);
         assert!(err < 1e-5, "max error {err}");
@@ -259,25 +259,25 @@ mod tests {
     fn reduce_keeps_constants_and_halves() {
         let p = Plane::from_fn(9, 4, 1, |_, _, _| 0.25);
         let r = reduce(&p);
-        assert_eq!((r.width, r.height), (5, 2));
-        assert!(r.data.iter().all(|v| (v - 0.25).abs() < 1e-6));
+        assert_eq!((r.width(), r.height()), (5, 2));
+        assert!(r.data().iter().all(|v| (v - 0.25).abs() < 1e-6));
         let e = expand(&r, 9, 4);
-        assert!(e.data.iter().all(|v| (v - 0.25).abs() < 1e-6));
+        assert!(e.data().iter().all(|v| (v - 0.25).abs() < 1e-6));
     }
 
     /// Direct clamped-index forms of `reduce` and `expand`, in the same float operation order.
     fn reference_reduce(p: &Plane) -> Plane {
-        let h = p.height as isize;
+        let h = p.height() as isize;
         let at = |q: &Plane, x: isize, y: isize| {
             q.at(
-                x.clamp(0, q.width as isize - 1) as usize,
+                x.clamp(0, q.width() as isize - 1) as usize,
                 y.clamp(0, h - 1) as usize,
                 0,
             )
         };
         let five =
             |a: f32, b: f32, m: f32, d: f32, e: f32| (a + e + 4.0 * (b + d) + 6.0 * m) / 16.0;
-        let tmp = Plane::from_fn(p.width.div_ceil(2), p.height, 1, |x, y, _| {
+        let tmp = Plane::from_fn(p.width().div_ceil(2), p.height(), 1, |x, y, _| {
             let (c, y) = (2 * x as isize, y as isize);
             five(
                 at(p, c - 2, y),
@@ -287,7 +287,7 @@ mod tests {
                 at(p, c + 2, y),
             )
         });
-        Plane::from_fn(tmp.width, p.height.div_ceil(2), 1, |x, y, _| {
+        Plane::from_fn(tmp.width(), p.height().div_ceil(2), 1, |x, y, _| {
             let (x, c) = (x as isize, 2 * y as isize);
             five(
                 at(&tmp, x, c - 2),
@@ -300,8 +300,9 @@ mod tests {
     }
 
     fn reference_expand(p: &Plane, w: usize, h: usize) -> Plane {
-        let at = |q: &Plane, x: usize, y: usize| q.at(x.min(q.width - 1), y.min(q.height - 1), 0);
-        let tmp = Plane::from_fn(w, p.height, 1, |x, y, _| {
+        let at =
+            |q: &Plane, x: usize, y: usize| q.at(x.min(q.width() - 1), y.min(q.height() - 1), 0);
+        let tmp = Plane::from_fn(w, p.height(), 1, |x, y, _| {
             let i = x / 2;
             match x % 2 {
                 0 => (at(p, i.saturating_sub(1), y) + 6.0 * at(p, i, y) + at(p, i + 1, y)) / 8.0,

@@ -16,7 +16,7 @@ pub fn sharp_displacement_rms(p: &SimParams, reg: &Registration) -> Vec<(usize, 
     let r = render_scene(p, &scene);
     let (w, h) = (p.width, p.height);
     let own = &r.owner;
-    let depth = &r.stack.depth.data;
+    let depth = r.stack.depth.data();
     (0..p.planes)
         .filter(|&i| i != r.stack.reference)
         .map(|i| {

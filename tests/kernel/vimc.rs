@@ -97,7 +97,7 @@ fn capture(cam: &mut V4l2Camera) -> Result<Take, String> {
 
 fn luma_spread(img: &Image<u8>) -> f64 {
     let l: Vec<f64> = img
-        .data
+        .data()
         .chunks_exact(3)
         .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
         .collect();
@@ -212,10 +212,10 @@ fn detected() -> Check {
     let take = capture(&mut cam)?;
     cam.release().map_err(|e| format!("release: {e}"))?;
     ensure!(
-        (take.image.width, take.image.height) == (640, 480),
+        (take.image.width(), take.image.height()) == (640, 480),
         "the chosen profile captured {}x{}",
-        take.image.width,
-        take.image.height
+        take.image.width(),
+        take.image.height()
     );
     ok(format!(
         "no profile configured: {} chosen by {}, streams 640x480",
@@ -301,10 +301,10 @@ fn streams(what: &str, profile: Profile, size: (usize, usize)) -> Result<String,
     for _ in 0..3 {
         let t = capture(&mut cam).map_err(|e| format!("{what}: {e}"))?;
         ensure!(
-            (t.image.width, t.image.height) == size,
+            (t.image.width(), t.image.height()) == size,
             "{what}: frame {}x{}, expected {size:?}",
-            t.image.width,
-            t.image.height
+            t.image.width(),
+            t.image.height()
         );
         spreads.push(luma_spread(&t.image));
     }

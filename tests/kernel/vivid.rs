@@ -194,7 +194,7 @@ fn press(dev: &Device, info: &Info, name: &str) -> Check {
 
 fn mean_luma(img: &Image<u8>) -> f64 {
     let sum: f64 = img
-        .data
+        .data()
         .chunks_exact(3)
         .map(|p| 0.299 * f64::from(p[0]) + 0.587 * f64::from(p[1]) + 0.114 * f64::from(p[2]))
         .sum();
@@ -217,8 +217,8 @@ const BARS: [(&str, [bool; 3]); 8] = [
 /// rows, down past the middle of a 320x180 frame): each bar's centre (averaged over a few
 /// pixels) has the bar's channels high (> 140) and the others low (< 70).
 fn colour_bars(img: &Image<u8>) -> Result<Vec<[u8; 3]>, String> {
-    let y = img.height * 7 / 8;
-    let bar = img.width / 8;
+    let y = img.height() * 7 / 8;
+    let bar = img.width() / 8;
     let mut seen = Vec::new();
     for (i, (name, want)) in BARS.iter().enumerate() {
         let cx = i * bar + bar / 2;
@@ -252,7 +252,7 @@ fn colour_bars(img: &Image<u8>) -> Result<Vec<[u8; 3]>, String> {
 fn row_summary(img: &Image<u8>, y: usize) -> Vec<[u8; 3]> {
     (0..16)
         .map(|i| {
-            let x = i * img.width / 16 + img.width / 32;
+            let x = i * img.width() / 16 + img.width() / 32;
             [img.at(x, y, 0), img.at(x, y, 1), img.at(x, y, 2)]
         })
         .collect()
@@ -385,11 +385,12 @@ fn formats(node: &Path, info: &Info, raw: &Device, wanted: &[&str], sizes: &[(u3
                 );
             }
             ensure!(
-                (img.width, img.height, img.channels) == (g.width as usize, g.height as usize, 3),
+                (img.width(), img.height(), img.channels())
+                    == (g.width as usize, g.height as usize, 3),
                 "{f} {size:?}: frame {}x{}x{}, the driver negotiated {}x{}",
-                img.width,
-                img.height,
-                img.channels,
+                img.width(),
+                img.height(),
+                img.channels(),
                 g.width,
                 g.height
             );

@@ -431,7 +431,7 @@ mod tests {
     }
 
     fn assert_flat(img: &Image<u8>, rgb: [u8; 3], tol: u8) {
-        for (i, px) in img.data.chunks_exact(3).enumerate() {
+        for (i, px) in img.data().chunks_exact(3).enumerate() {
             for c in 0..3 {
                 assert!(
                     px[c].abs_diff(rgb[c]) <= tol,
@@ -506,7 +506,7 @@ mod tests {
     fn yuyv_grey_and_red() {
         let grey =
             rgb(PixelFormat::Yuyv, 4, 2, 8, &yuyv(4, 2, [126, 128, 128], 8)).expect("converts");
-        assert_eq!((grey.width, grey.height, grey.channels), (4, 2, 3));
+        assert_eq!((grey.width(), grey.height(), grey.channels()), (4, 2, 3));
         assert_flat(&grey, [128, 128, 128], 0);
         // Pure red in BT.601 limited range.
         let red = rgb(PixelFormat::Yuyv, 4, 2, 8, &yuyv(4, 2, [81, 90, 240], 8)).expect("converts");
@@ -574,7 +574,7 @@ mod tests {
             .collect();
         let planes = [(luma, stride), (&packed[..], w)];
         let img2 = rgb_planes(PixelFormat::Nv12m, w, h, &planes).expect("converts");
-        assert_eq!(img2.data, img.data);
+        assert_eq!(img2.data(), img.data());
         let e = rgb_planes(PixelFormat::Nv12m, w, h, &planes[..1]).expect_err("one plane");
         assert!(e.contains("1 memory planes, 2 expected"), "{e}");
         let e = rgb_planes(PixelFormat::Nv12m, w, h, &[planes[0], (&packed[..5], w)])

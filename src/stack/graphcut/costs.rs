@@ -44,7 +44,7 @@ impl Amps {
             .zip(coverage)
             .map(|(f, cov)| amplitude_rows(f, cov, p, rows.clone()))
             .collect();
-        Self::new(rows.start * frames[0].width, per_frame)
+        Self::new(rows.start * frames[0].width(), per_frame)
     }
 }
 
@@ -57,7 +57,7 @@ pub(super) fn amplitude_rows<T: Sample>(
     p: &FocusParams,
     rows: Range<usize>,
 ) -> Vec<u16> {
-    let (w, h) = (frame.width, frame.height);
+    let (w, h) = (frame.width(), frame.height());
     let reach = focus_reach(p);
     let ext = rows.start.saturating_sub(reach)..(rows.end + reach).min(h);
     let mut a = frame_focus_amplitude(frame, ext.clone(), p);
@@ -141,11 +141,11 @@ impl<'a, T: Sample> Level<'a, T> {
         p: &GraphCutParams,
         ties: &'a Ties<'a>,
     ) -> Self {
-        let channels = images[0].channels;
+        let channels = images[0].channels();
         let full = channels as f32 * T::MAX;
         Self {
             channels,
-            colors: images.iter().map(|i| i.data.as_slice()).collect(),
+            colors: images.iter().map(|i| i.data()).collect(),
             amps,
             unary_scale: full / lambda,
             eps: p.noise_floor * AMP_SCALE,

@@ -132,7 +132,7 @@ pub fn label_stack<T: Sample>(
     band_rows: usize,
     progress: &dyn Progress,
 ) -> Labelled {
-    let (w, h) = (frames[0].width, frames[0].height);
+    let (w, h) = (frames[0].width(), frames[0].height());
     let f = coarse_factor(w * h, p.coarse_pixels);
     let whole = band_rows >= h || f == 1;
     progress.stage(Stage::Focus, frames.len());
@@ -179,7 +179,7 @@ pub fn label_stack<T: Sample>(
 
     // Coarse level: seam weight λ/f keeps the energy's balance (areas shrink by f², seams by f).
     let small: Vec<Image<T>> = frames.par_iter().map(|i| downsample_area(i, f)).collect();
-    let (cw, ch) = (small[0].width, small[0].height);
+    let (cw, ch) = (small[0].width(), small[0].height());
     let camps = Amps::new(0, camps);
     let map = tie_map(&camps.per_frame, p);
     let coarse_ties = Ties::whole(&map, cw, fallback);
@@ -268,7 +268,7 @@ pub fn labelling_energy<T: Sample>(
     fallback: u8,
     p: &GraphCutParams,
 ) -> i64 {
-    let (w, h) = (frames[0].width, frames[0].height);
+    let (w, h) = (frames[0].width(), frames[0].height());
     let amps = Amps::for_rows(frames, coverage, &p.focus, 0..h);
     let f = coarse_factor(w * h, p.coarse_pixels);
     let coarse: Vec<Vec<u16>> = amps
@@ -354,7 +354,7 @@ mod tests {
         let frames: Vec<Image<u8>> = (0..3)
             .map(|_| {
                 let mut f = Image::new(w, h, 3);
-                for v in f.data.iter_mut() {
+                for v in f.data_mut().iter_mut() {
                     seed = seed
                         .wrapping_mul(6364136223846793005)
                         .wrapping_add(1442695040888963407);

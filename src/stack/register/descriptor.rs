@@ -40,7 +40,7 @@ fn one(p: &Plane, x: f32, y: f32, sigma: f32) -> [f32; LEN] {
     let taps = |c: f32, n: usize| -> [Tap; GRID + 2] {
         std::array::from_fn(|i| Tap::new(c + (i as f32 - half) * step, n))
     };
-    let (cols, rows) = (taps(x, p.width), taps(y, p.height));
+    let (cols, rows) = (taps(x, p.width()), taps(y, p.height()));
     let mut g = [[0.0f32; GRID + 2]; GRID + 2];
     for (row, &ty) in g.iter_mut().zip(&rows) {
         for (v, &tx) in row.iter_mut().zip(&cols) {

@@ -54,7 +54,7 @@ impl Stack {
 /// at most one of the two is blurred. `frame` holds the frame's stack warped onto the template,
 /// already corrected for gain and offset; NaN marks pixels outside the frame.
 pub fn choose(template: &Stack, frame: &[Plane]) -> Vec<(u8, u8)> {
-    let (w, h) = (template.layers[0].width, template.layers[0].height);
+    let (w, h) = (template.layers[0].width(), template.layers[0].height());
     let n = SIGMAS.len();
     let pairs: Vec<(u8, u8)> = (0..n)
         .map(|k| (k as u8, 0))
@@ -80,15 +80,15 @@ pub fn choose(template: &Stack, frame: &[Plane]) -> Vec<(u8, u8)> {
         .map(|(k, &(kt, kf))| {
             let (t, f) = (&template.layers[kt as usize], &frame[kf as usize]);
             let d = t
-                .data
+                .data()
                 .iter()
-                .zip(&f.data)
+                .zip(f.data())
                 .map(|(a, b)| if b.is_nan() { 0.0 } else { (a - b) * (a - b) })
                 .collect();
             let penalty = 1.0 + STEP_PENALTY * (kt + kf) as f32;
             let mut c = box_sum(&Plane::from_vec(w, h, 1, d), WINDOW);
-            c.data.iter_mut().for_each(|v| *v *= penalty);
-            (c.data, vec![k as u8; w * h])
+            c.data_mut().iter_mut().for_each(|v| *v *= penalty);
+            (c.into_data(), vec![k as u8; w * h])
         })
         .reduce_with(merge)
         .expect("fifteen pairs");
@@ -114,11 +114,11 @@ pub fn finer(pick: &[(u8, u8)], cw: usize, ch: usize, w: usize, h: usize) -> Vec
 
 /// Sum over the (2r+1)² window around each pixel, truncated at the borders.
 pub(super) fn box_sum(p: &Plane, r: usize) -> Plane {
-    let (w, h) = (p.width, p.height);
+    let (w, h) = (p.width(), p.height());
     // Along rows with a running sum, then down the columns a row at a time (contiguous).
     let mut rows = vec![0.0f32; w * h];
     rows.par_chunks_mut(w * ROW_GROUP)
-        .zip(p.data.par_chunks(w * ROW_GROUP))
+        .zip(p.data().par_chunks(w * ROW_GROUP))
         .for_each(|(out, src)| running_sums(src, out, w, r));
     let mut out = vec![0.0f32; w * h];
     let mut acc = vec![0.0f32; w];

@@ -50,7 +50,7 @@ impl ScaleSpace {
     pub fn build(p: &Plane, max_octaves: usize) -> ScaleSpace {
         let mut base = gaussian_blur(p, (SIGMA0 * SIGMA0 - INPUT_SIGMA * INPUT_SIGMA).sqrt());
         let mut octaves = Vec::new();
-        while octaves.len() < max_octaves && base.width.min(base.height) >= 4 * BORDER + 8 {
+        while octaves.len() < max_octaves && base.width().min(base.height()) >= 4 * BORDER + 8 {
             let mut layers = vec![base];
             for s in 1..SCALES + 3 {
                 let (a, b) = (Self::layer_sigma(s - 1), Self::layer_sigma(s));
@@ -66,7 +66,7 @@ impl ScaleSpace {
 }
 
 fn subsample(p: &Plane) -> Plane {
-    let (w, h) = (p.width.div_ceil(2), p.height.div_ceil(2));
+    let (w, h) = (p.width().div_ceil(2), p.height().div_ceil(2));
     Plane::from_fn(w, h, 1, |x, y, _| p.at(2 * x, 2 * y, 0))
 }
 
@@ -79,8 +79,8 @@ pub fn detect(ss: &ScaleSpace, threshold: f32, max_count: usize) -> Vec<Keypoint
         let dog: Vec<Plane> = layers
             .windows(2)
             .map(|w| {
-                let data = w[1].data.iter().zip(&w[0].data).map(|(b, a)| b - a);
-                Plane::from_vec(w[0].width, w[0].height, 1, data.collect())
+                let data = w[1].data().iter().zip(w[0].data()).map(|(b, a)| b - a);
+                Plane::from_vec(w[0].width(), w[0].height(), 1, data.collect())
             })
             .collect();
         for s in 1..=SCALES {
@@ -90,19 +90,19 @@ pub fn detect(ss: &ScaleSpace, threshold: f32, max_count: usize) -> Vec<Keypoint
     let Some(first) = ss.octaves.first() else {
         return all;
     };
-    spread(all, first[0].width, first[0].height, max_count)
+    spread(all, first[0].width(), first[0].height(), max_count)
 }
 
 /// Extrema in the middle of three DoG layers of octave `o`.
 fn extrema(d: &[Plane], threshold: f32, o: usize, s: usize) -> Vec<Keypoint> {
-    let (w, h) = (d[1].width, d[1].height);
+    let (w, h) = (d[1].width(), d[1].height());
     let scale = (1usize << o) as f32;
     (BORDER..h - BORDER)
         .into_par_iter()
         .flat_map_iter(|y| {
             let mut found = Vec::new();
             for x in BORDER..w - BORDER {
-                let v = d[1].data[y * w + x];
+                let v = d[1].data()[y * w + x];
                 if v.abs() <= threshold || !is_extremum(d, x, y, v) {
                     continue;
                 }
@@ -129,11 +129,11 @@ fn extrema(d: &[Plane], threshold: f32, o: usize, s: usize) -> Vec<Keypoint> {
 /// a row or two, so each row of three stops the search once it is settled; the middle layer,
 /// which rules out most, is read first.
 fn is_extremum(d: &[Plane], x: usize, y: usize, v: f32) -> bool {
-    let w = d[1].width;
+    let w = d[1].width();
     let (mut max, mut min) = (true, true);
     for layer in [&d[1], &d[0], &d[2]] {
         for yy in y - 1..=y + 1 {
-            for &n in &layer.data[yy * w + x - 1..=yy * w + x + 1] {
+            for &n in &layer.data()[yy * w + x - 1..=yy * w + x + 1] {
                 max &= v >= n;
                 min &= v <= n;
             }
@@ -148,9 +148,9 @@ fn is_extremum(d: &[Plane], x: usize, y: usize, v: f32) -> bool {
 /// Quadratic fit of the DoG around (x, y, middle layer): the sub-pixel offset and value, or None
 /// on an edge or when the true extremum lies beyond the neighbouring sample.
 fn refine(d: &[Plane], x: usize, y: usize) -> Option<(f32, f32, f32, f32)> {
-    let w = d[1].width;
+    let w = d[1].width();
     let at = |s: usize, dx: isize, dy: isize| {
-        d[s].data[((y as isize + dy) as usize) * w + (x as isize + dx) as usize]
+        d[s].data()[((y as isize + dy) as usize) * w + (x as isize + dx) as usize]
     };
     let v = at(1, 0, 0);
     let g = [

@@ -17,7 +17,7 @@ pub struct Luma<'a, T>(pub &'a Image<T>);
 
 impl<T: Sample> RowSource for Luma<'_, T> {
     fn size(&self) -> (usize, usize) {
-        (self.0.width, self.0.height)
+        (self.0.width(), self.0.height())
     }
 
     fn row<'b>(&'b self, y: usize, buf: &'b mut [f32]) -> &'b [f32] {
@@ -41,7 +41,7 @@ impl Levels {
         // Level k is reduced from level k − 1; level 1 straight from the source's rows.
         let mut cur: Option<Plane> = None;
         for k in 1..=last {
-            let size = cur.as_ref().map_or((w, h), |p| (p.width, p.height));
+            let size = cur.as_ref().map_or((w, h), |p| (p.width(), p.height()));
             if size.0.min(size.1) < 16 {
                 break;
             }
@@ -99,7 +99,7 @@ mod tests {
     #[test]
     fn levels_of_a_frames_streamed_luma_are_those_of_its_luma_plane() {
         let mut frame = Image::<u8>::new(70, 45, 3);
-        for (i, v) in frame.data.iter_mut().enumerate() {
+        for (i, v) in frame.data_mut().iter_mut().enumerate() {
             *v = ((i * 37 + i / 211) % 256) as u8;
         }
         let plane = frame.luma();

@@ -124,7 +124,7 @@ impl Flow {
     fn expand_to(&self, w: usize, h: usize) -> Flow {
         let up = |v: &[f32]| {
             let p = Plane::from_vec(self.width, self.height, 1, v.to_vec());
-            let mut e = expand(&p, w, h).data;
+            let mut e = expand(&p, w, h).into_data();
             e.iter_mut().for_each(|v| *v *= 2.0);
             e
         };
@@ -145,7 +145,7 @@ impl Warped {
     /// `plane` is the frame at pyramid level `k`, `ref_to_frame` its full-resolution affine.
     pub fn new(plane: &Plane, ref_to_frame: &Affine, k: usize) -> Warped {
         let a = to_level(ref_to_frame, k);
-        let (w, h) = (plane.width, plane.height);
+        let (w, h) = (plane.width(), plane.height());
         let cs = Coords::mapped(w, h, plane, |x, y| a.apply(x, y));
         let data: Vec<f32> = (0..w * h)
             .map(|i| cs.sample(plane, i).unwrap_or(f32::NAN))
@@ -158,8 +158,11 @@ impl Warped {
 /// alike, their ratio is the filter of the defined pixels alone.
 fn masked(p: &Plane) -> (Plane, Plane) {
     let plane = |f: &dyn Fn(f32) -> f32| {
-        let data = p.data.iter().map(|&v| if v.is_nan() { 0.0 } else { f(v) });
-        Plane::from_vec(p.width, p.height, 1, data.collect())
+        let data = p
+            .data()
+            .iter()
+            .map(|&v| if v.is_nan() { 0.0 } else { f(v) });
+        Plane::from_vec(p.width(), p.height(), 1, data.collect())
     };
     (plane(&|_| 1.0), plane(&|v| v))
 }
@@ -172,12 +175,12 @@ fn high_pass(p: &Plane) -> Plane {
         gaussian_blur(&filled, HIGH_PASS),
     );
     let data = p
-        .data
+        .data()
         .iter()
-        .zip(bv.data.iter().zip(&bf.data))
+        .zip(bv.data().iter().zip(bf.data()))
         .map(|(v, (n, s))| if *n > 1e-3 { v - s / n } else { f32::NAN })
         .collect();
-    Plane::from_vec(p.width, p.height, 1, data)
+    Plane::from_vec(p.width(), p.height(), 1, data)
 }
 
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
@@ -190,7 +193,7 @@ impl Pyramid {
         let mut levels = vec![p.clone()];
         for _ in 0..LEVELS {
             let last = levels.last().expect("level");
-            if last.width.min(last.height) < 32 {
+            if last.width().min(last.height()) < 32 {
                 break;
             }
             let reduced = reduce_nan(last);
@@ -214,7 +217,7 @@ impl Chain {
     pub fn new(reference: &Plane, level: usize) -> Chain {
         Chain {
             prev: Pyramid::new(&Warped::new(reference, &Affine::IDENTITY, 0).0),
-            flow: Flow::zero(reference.width, reference.height),
+            flow: Flow::zero(reference.width(), reference.height()),
             level,
         }
     }
@@ -257,10 +260,10 @@ impl Chain {
 fn flow(a: &Pyramid, b: &Pyramid) -> Flow {
     let (pa, pb) = (&a.0, &b.0);
     let top = pa.len() - 1;
-    let mut f = Flow::zero(pa[top].width, pa[top].height);
+    let mut f = Flow::zero(pa[top].width(), pa[top].height());
     for k in (0..=top).rev() {
         if k < top {
-            f = f.expand_to(pa[k].width, pa[k].height);
+            f = f.expand_to(pa[k].width(), pa[k].height());
         }
         let t = Tensor::new(&pa[k]);
         for _ in 0..ITERATIONS {
@@ -278,7 +281,7 @@ fn flow(a: &Pyramid, b: &Pyramid) -> Flow {
 /// neighbouring frames differ by defocus, noise or occlusion rather than motion, a flow fitted
 /// to them only wanders; there the affine stands.
 fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
-    let (w, h) = (a.width, a.height);
+    let (w, h) = (a.width(), a.height());
     let sq = |moved: bool| {
         let data: Vec<f32> = (0..w * h)
             .into_par_iter()
@@ -287,9 +290,9 @@ fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
                 let v = if moved {
                     bilinear(b, x + f.dx[i], y + f.dy[i])
                 } else {
-                    b.data[i]
+                    b.data()[i]
                 };
-                let e = v - a.data[i];
+                let e = v - a.data()[i];
                 if e.is_nan() {
                     0.0
                 } else {
@@ -303,7 +306,7 @@ fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
     let gain = EXPLAINED;
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
-        .zip(still.data.par_iter().zip(&moved.data))
+        .zip(still.data().par_iter().zip(moved.data()))
         .for_each(|((dx, dy), (e0, e1))| {
             // Share of the residual the flow removes, mapped to a weight 0..1.
             let removed = if *e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
@@ -319,12 +322,12 @@ fn reduce_nan(p: &Plane) -> Plane {
     let (valid, filled) = masked(p);
     let (rv, rf) = (reduce(&valid), reduce(&filled));
     let data = rv
-        .data
+        .data()
         .iter()
-        .zip(&rf.data)
+        .zip(rf.data())
         .map(|(n, s)| if *n > 0.9 { s / n } else { f32::NAN })
         .collect();
-    Plane::from_vec(rv.width, rv.height, 1, data)
+    Plane::from_vec(rv.width(), rv.height(), 1, data)
 }
 
 /// The pooled structure tensor of a level's reference plane and its ridge: the normal
@@ -341,7 +344,7 @@ struct Tensor {
 
 impl Tensor {
     fn new(a: &Plane) -> Tensor {
-        let (w, h) = (a.width, a.height);
+        let (w, h) = (a.width(), a.height());
         let mut grad = vec![[0.0f32; 2]; w * h];
         grad.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             if y == 0 || y + 1 == h {
@@ -349,8 +352,8 @@ impl Tensor {
             }
             for (x, g) in row.iter_mut().enumerate().take(w - 1).skip(1) {
                 let i = y * w + x;
-                let gx = 0.5 * (a.data[i + 1] - a.data[i - 1]);
-                let gy = 0.5 * (a.data[i + w] - a.data[i - w]);
+                let gx = 0.5 * (a.data()[i + 1] - a.data()[i - 1]);
+                let gy = 0.5 * (a.data()[i + w] - a.data()[i - w]);
                 if !(gx.is_nan() || gy.is_nan()) {
                     *g = [gx, gy];
                 }
@@ -363,7 +366,7 @@ impl Tensor {
                 1,
                 grad.iter().map(|&g| f(g)).collect(),
             ))
-            .data
+            .into_data()
         };
         // The three in parallel: a side's chain of frames is otherwise one thread's work.
         let (mut xx, (xy, mut yy)) = rayon::join(
@@ -381,7 +384,7 @@ impl Tensor {
 /// `a` weighted by `a`'s gradient and pooled over a window, each pixel's increment solved with
 /// `a`'s pooled tensor `t`. Returns the share of pixels that moved by `SETTLED.0` or more.
 fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) -> f32 {
-    let (w, h) = (a.width, a.height);
+    let (w, h) = (a.width(), a.height());
     // Per pixel: gx·e, gy·e; zero where the residual is undefined (outside the frame). Written
     // straight into the two planes pooled, with no interleaved copy between.
     let (mut xe, mut ye) = (vec![0.0f32; w * h], vec![0.0f32; w * h]);
@@ -391,7 +394,7 @@ fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) -> f32 {
         .for_each(|(y, (xr, yr))| {
             for (x, (xo, yo)) in xr.iter_mut().zip(yr).enumerate() {
                 let i = y * w + x;
-                let e = bilinear(b, x as f32 + f.dx[i], y as f32 + f.dy[i]) - a.data[i];
+                let e = bilinear(b, x as f32 + f.dx[i], y as f32 + f.dy[i]) - a.data()[i];
                 if !e.is_nan() {
                     let [gx, gy] = t.grad[i];
                     (*xo, *yo) = (gx * e, gy * e);
@@ -399,8 +402,8 @@ fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) -> f32 {
             }
         });
     let (xe, ye) = rayon::join(
-        || pool(&Plane::from_vec(w, h, 1, xe)).data,
-        || pool(&Plane::from_vec(w, h, 1, ye)).data,
+        || pool(&Plane::from_vec(w, h, 1, xe)).into_data(),
+        || pool(&Plane::from_vec(w, h, 1, ye)).into_data(),
     );
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
@@ -423,14 +426,14 @@ fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) -> f32 {
 
 /// Bilinear sample, NaN outside or where a tap is NaN.
 fn bilinear(p: &Plane, x: f32, y: f32) -> f32 {
-    if !(x >= 0.0 && y >= 0.0 && x <= (p.width - 1) as f32 && y <= (p.height - 1) as f32) {
+    if !(x >= 0.0 && y >= 0.0 && x <= (p.width() - 1) as f32 && y <= (p.height() - 1) as f32) {
         return f32::NAN;
     }
     let (x0, y0) = (x as usize, y as usize);
-    let (x1, y1) = ((x0 + 1).min(p.width - 1), (y0 + 1).min(p.height - 1));
+    let (x1, y1) = ((x0 + 1).min(p.width() - 1), (y0 + 1).min(p.height() - 1));
     let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let d = &p.data;
-    let w = p.width;
+    let d = p.data();
+    let w = p.width();
     let top = d[y0 * w + x0] * (1.0 - fx) + d[y0 * w + x1] * fx;
     let bot = d[y1 * w + x0] * (1.0 - fx) + d[y1 * w + x1] * fx;
     top * (1.0 - fy) + bot * fy

@@ -236,7 +236,7 @@ pub fn register_with<T: Sample>(
             },
         });
     }
-    let size = (frames[reference].width, frames[reference].height);
+    let size = (frames[reference].width(), frames[reference].height());
     let (w, h) = size;
     let det = level_within(w, h, p.detect_pixels);
     // Never full size: the defocus equalisation's blurs (up to 5.7 level pixels) fall short of
@@ -253,11 +253,11 @@ pub fn register_with<T: Sample>(
     };
     let prepare = |i: usize| {
         let f = &frames[i];
-        if (f.width, f.height) != (w, h) {
+        if (f.width(), f.height()) != (w, h) {
             return Err(RegisterError::Size {
                 frame: i,
-                width: f.width,
-                height: f.height,
+                width: f.width(),
+                height: f.height(),
                 ref_width: w,
                 ref_height: h,
             });

@@ -57,7 +57,7 @@ impl View {
 
     /// Per pixel `i`, the value and central differences of `layers[layer(i)]` there.
     fn from_layers(layers: &[Plane], layer: impl Fn(usize) -> usize + Sync) -> View {
-        let (w, h) = (layers[0].width, layers[0].height);
+        let (w, h) = (layers[0].width(), layers[0].height());
         let mut v = View {
             width: w,
             height: h,
@@ -75,7 +75,7 @@ impl View {
             .for_each(|(y, (t, gx, gy))| {
                 for x in 0..w {
                     let i = y * w + x;
-                    let p = &layers[layer(i)].data;
+                    let p = layers[layer(i)].data();
                     t[x] = p[i];
                     if x > 0 && x + 1 < w && y > 0 && y + 1 < h {
                         gx[x] = (p[i + 1] - p[i - 1]) / 2.0;
@@ -186,10 +186,10 @@ pub fn refine(
                     up.fill(frame.get(k + 1));
                     let t = &coarse.layers[0];
                     let w1 = to_level(&from_level(&fit.w, k), k + 1);
-                    cs.remap(&w1, t.width, t.height, &up.layers[0], 1);
+                    cs.remap(&w1, t.width(), t.height(), &up.layers[0], 1);
                     let warped = warp_stack(up, cs, fit.gain, fit.offset);
                     let p1 = equalise::choose(coarse, &warped);
-                    equalise::finer(&p1, t.width, t.height, view.width, view.height)
+                    equalise::finer(&p1, t.width(), t.height(), view.width, view.height)
                 }
                 None => {
                     cs.remap(&fit.w, view.width, view.height, &stack.layers[0], 1);
@@ -290,7 +290,7 @@ impl Coords {
         frame: &Plane,
         map: impl Fn(f64, f64) -> (f64, f64) + Sync,
     ) {
-        let (iw, ih) = (frame.width as f32 - 1.0, frame.height as f32 - 1.0);
+        let (iw, ih) = (frame.width() as f32 - 1.0, frame.height() as f32 - 1.0);
         let (lw, lh) = (tw.div_ceil(stride), th.div_ceil(stride));
         let n = lw * lh;
         for v in [&mut self.fx, &mut self.fy] {
@@ -299,7 +299,7 @@ impl Coords {
         }
         self.idx.clear();
         self.idx.resize(n, u32::MAX);
-        (self.stride, self.width, self.height) = (frame.width, lw, lh);
+        (self.stride, self.width, self.height) = (frame.width(), lw, lh);
         // Each row written in place: rows made apart and joined were copied twice over.
         self.idx
             .par_chunks_mut(lw.max(1))
@@ -318,7 +318,7 @@ impl Coords {
                         // Truncation floors a non-negative coordinate, without `floor`'s
                         // library call (baseline x86-64 has no rounding instruction).
                         let (x0, y0) = (u as usize, v as usize);
-                        idx[lx] = (y0 * frame.width + x0) as u32;
+                        idx[lx] = (y0 * frame.width() + x0) as u32;
                         fx[lx] = u - x0 as f32;
                         fy[lx] = v - y0 as f32;
                     }
@@ -334,7 +334,7 @@ impl Coords {
             return None;
         }
         let (k, s, fx, fy) = (k as usize, self.stride, self.fx[i], self.fy[i]);
-        let d = &p.data;
+        let d = p.data();
         let top = d[k] + fx * (d[k + 1] - d[k]);
         let bot = d[k + s] + fx * (d[k + s + 1] - d[k + s]);
         Some(top + fy * (bot - top))

@@ -68,7 +68,7 @@ pub fn sides<T: Sample>(
     reduced: &[Vec<Plane>],
     factor: usize,
 ) -> Sides {
-    let (w, h, ch) = (frames[0].width, frames[0].height, frames[0].channels);
+    let (w, h, ch) = (frames[0].width(), frames[0].height(), frames[0].channels());
     let n = reduced.len();
     let (rw, rh) = (w.div_ceil(factor), h.div_ceil(factor));
     let (lo, hi) = block_extremes(depth, w, h, factor);
@@ -94,10 +94,15 @@ pub fn sides<T: Sample>(
                 reduced[k]
                     .iter()
                     .map(|c| {
-                        let data = c.data.iter().zip(&wgt.data).map(|(v, m)| v * m).collect();
+                        let data = c
+                            .data()
+                            .iter()
+                            .zip(wgt.data())
+                            .map(|(v, m)| v * m)
+                            .collect();
                         let mut mean =
-                            gaussian_blur(&Plane::from_vec(wgt.width, wgt.height, 1, data), s);
-                        for (v, &z) in mean.data.iter_mut().zip(&norm.data) {
+                            gaussian_blur(&Plane::from_vec(wgt.width(), wgt.height(), 1, data), s);
+                        for (v, &z) in mean.data_mut().iter_mut().zip(norm.data()) {
                             *v = if z > 1e-3 { *v / z } else { f32::NAN };
                         }
                         mean
@@ -127,7 +132,7 @@ pub fn sides<T: Sample>(
                     if !coverage[frame_of(k)].covers(x, y) {
                         continue;
                     }
-                    let px = &frames[frame_of(k)].data[i * ch..][..ch];
+                    let px = &frames[frame_of(k)].data()[i * ch..][..ch];
                     let (mut din, mut dout) = (0.0, 0.0);
                     for (c, v) in px.iter().enumerate() {
                         let v = v.to_f32() / T::MAX;

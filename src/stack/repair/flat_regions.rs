@@ -101,7 +101,7 @@ pub fn settle<T: Sample>(
     let Some(f0) = frames.first() else {
         return Settled::default();
     };
-    let (w, h) = (f0.width, f0.height);
+    let (w, h) = (f0.width(), f0.height());
     debug_assert_eq!((labels.len(), textured.len()), (w * h, w * h));
     let regions = flat_regions(textured, labels, w, h);
     let moves: Vec<(u8, Vec<usize>)> = regions
@@ -341,7 +341,7 @@ impl Window {
         let flags = self.flags(&frames[k], &coverage[k]);
         let grown = self.grow(&flags);
         let inside: Vec<bool> = grown.state.iter().map(|&s| s == Grown::IN).collect();
-        let (ww, wh, w) = (self.width(), self.ys.len(), frames[k].width);
+        let (ww, wh, w) = (self.width(), self.ys.len(), frames[k].width());
         // What lies beyond its crisp outline, past the edge itself: a region's own edge has
         // something farther behind it; an occluder's edge, the occluder.
         let crisp: Vec<bool> = (0..ww * wh)
@@ -380,7 +380,7 @@ impl Window {
     /// [`SHOWN_FLAT`] or [`STEEP`] (a crisp step; [`Self::near_crisp`] pools them). A pixel the
     /// frame does not cover is neither.
     fn flags<T: Sample>(&self, f: &Image<T>, cov: &Coverage) -> Vec<u8> {
-        let (w, h, ch) = (f.width, f.height, f.channels);
+        let (w, h, ch) = (f.width(), f.height(), f.channels());
         let ww = self.width();
         let mut flags = vec![0u8; ww * self.ys.len()];
         let (mut vert, mut here, mut below, mut steps) = (vec![], vec![], vec![], vec![]);
@@ -501,8 +501,8 @@ fn smooth_row<T: Sample>(
     vert: &mut Vec<f32>,
     out: &mut Vec<f32>,
 ) {
-    let (w, h, ch) = (f.width, f.height, f.channels);
-    let row = |yy: usize| &f.data[yy * w * ch..][..w * ch];
+    let (w, h, ch) = (f.width(), f.height(), f.channels());
+    let row = |yy: usize| &f.data()[yy * w * ch..][..w * ch];
     let (a, b, c) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
     // Vertical sums of the columns, one either side (replicated at the image's edges).
     let (lo, hi) = (xs.start.saturating_sub(1), (xs.end + 1).min(w));

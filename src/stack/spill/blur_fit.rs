@@ -93,7 +93,7 @@ pub(super) fn fit_near(
     inside: &[u8],
     factor: usize,
 ) -> Vec<(Pair, f64)> {
-    let (rw, rh) = (lumas[k].width, lumas[k].height);
+    let (rw, rh) = (lumas[k].width(), lumas[k].height());
     let f = factor as f32;
     let first = margin(SIGMA_MIN, factor);
     let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
@@ -114,7 +114,7 @@ pub(super) fn fit_near(
             .flat_map(|y| p[y * rw + x0..=y * rw + x1].iter().copied())
             .collect()
     };
-    let near = Plane::from_vec(cw, ch, 1, crop(&lumas[k].data));
+    let near = Plane::from_vec(cw, ch, 1, crop(lumas[k].data()));
     let depth_in: Vec<u8> = (y0..=y1)
         .flat_map(|y| inside[y * rw + x0..=y * rw + x1].iter().copied())
         .collect();
@@ -144,7 +144,7 @@ pub(super) fn fit_near(
         let var = far
             .iter()
             .map(|&l| {
-                let v = &lumas[l].data;
+                let v = lumas[l].data();
                 let values = || runs.iter().flat_map(|&(_, j, n)| &v[j..j + n]);
                 let mean = values().map(|&x| x as f64).sum::<f64>() / count as f64;
                 values().map(|&x| (x as f64 - mean).powi(2)).sum()
@@ -170,11 +170,11 @@ pub(super) fn fit_near(
             far.iter()
                 .zip(&inner.var)
                 .map(|(&l, &var)| {
-                    let v = &lumas[l].data;
+                    let v = lumas[l].data();
                     let err: f64 = inner
                         .runs
                         .iter()
-                        .flat_map(|&(i, j, n)| blurred.data[i..i + n].iter().zip(&v[j..j + n]))
+                        .flat_map(|&(i, j, n)| blurred.data()[i..i + n].iter().zip(&v[j..j + n]))
                         .map(|(&b, &x)| (b as f64 - x as f64).powi(2))
                         .sum();
                     err / var.max(1e-9 * inner.count as f64)

@@ -31,7 +31,7 @@ pub(super) fn fill_near_objects<T: Sample>(
     coverage: &[Coverage],
     frame_of: &(dyn Fn(usize) -> usize + Sync),
 ) -> usize {
-    let (w, h, ch) = (frames[0].width, frames[0].height, frames[0].channels);
+    let (w, h, ch) = (frames[0].width(), frames[0].height(), frames[0].channels());
     // Only where every frame reaches: near the border a label can be the reference's because
     // the frame the labelling chose does not cover the pixel, which says nothing of depth
     // (filled there, a border would take the reference's blurred background).
@@ -51,7 +51,7 @@ pub(super) fn fill_near_objects<T: Sample>(
         let target = frame_of(l);
         let mut far = std::mem::replace(&mut frames[target], Image::new(0, 0, ch));
         let nearer = &*frames;
-        far.data
+        far.data_mut()
             .par_chunks_mut(w * ch)
             .zip(fill.par_chunks(w))
             .enumerate()
@@ -60,7 +60,7 @@ pub(super) fn fill_near_objects<T: Sample>(
                     // f = k + 1 for an object at depth k: filled where k + 2 <= l.
                     if f > 0 && (f as usize) < l {
                         let i = (y * w + x) * ch;
-                        let near = &nearer[frame_of(f as usize - 1)].data[i..][..ch];
+                        let near = &nearer[frame_of(f as usize - 1)].data()[i..][..ch];
                         row[x * ch..][..ch].copy_from_slice(near);
                     }
                 }

@@ -41,12 +41,12 @@ impl Light {
 pub(super) fn luma(planes: &[Plane], light: Light) -> Plane {
     let mix = light.mixing();
     let data = match planes {
-        [r, g, b] => (r.data.iter().zip(&g.data).zip(&b.data))
+        [r, g, b] => (r.data().iter().zip(g.data()).zip(b.data()))
             .map(|((&r, &g), &b)| luma_of(mix(r), mix(g), mix(b)))
             .collect(),
-        _ => planes[0].data.iter().map(|&v| mix(v)).collect(),
+        _ => planes[0].data().iter().map(|&v| mix(v)).collect(),
     };
-    Plane::from_vec(planes[0].width, planes[0].height, 1, data)
+    Plane::from_vec(planes[0].width(), planes[0].height(), 1, data)
 }
 
 /// Near depths fitted in both lights before the rest: the [`PROBES`] with the most interior.
@@ -79,8 +79,8 @@ pub(super) fn fit(
     let interiors: Vec<Vec<u8>> = masks
         .par_iter()
         .map(|m| {
-            let outside: Vec<bool> = m.data.iter().map(|&a| a < 0.5).collect();
-            distance(&outside, m.width, m.height, u8::MAX)
+            let outside: Vec<bool> = m.data().iter().map(|&a| a < 0.5).collect();
+            distance(&outside, m.width(), m.height(), u8::MAX)
         })
         .collect();
     // Probes only among the depths two or more planes before the last: the others have no

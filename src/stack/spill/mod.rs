@@ -165,7 +165,7 @@ pub fn unmix<T: Sample>(
     if n < 3 || frames[0].pixels() == 0 || out.untold {
         return out;
     }
-    let (w, h) = (frames[0].width, frames[0].height);
+    let (w, h) = (frames[0].width(), frames[0].height());
     debug_assert_eq!(labels.len(), w * h);
     // Settle flat regions, reduce, find the steps' sides and relabel, fit in two lights, un-mix:
     // see `fit` and the loop below for the steps.
@@ -222,7 +222,7 @@ pub fn unmix<T: Sample>(
     if light == Light::Linear {
         let mix = light.mixing();
         mixed.par_iter_mut().for_each(|planes| {
-            for v in planes.iter_mut().flat_map(|p| p.data.iter_mut()) {
+            for v in planes.iter_mut().flat_map(|p| p.data_mut().iter_mut()) {
                 *v = mix(*v);
             }
         });
@@ -285,5 +285,8 @@ fn region_masks(depth: &[u8], w: usize, h: usize, n: usize, factor: usize) -> Ve
 }
 
 fn add(acc: &mut Plane, b: &Plane) {
-    acc.data.iter_mut().zip(&b.data).for_each(|(a, v)| *a += v);
+    acc.data_mut()
+        .iter_mut()
+        .zip(b.data())
+        .for_each(|(a, v)| *a += v);
 }

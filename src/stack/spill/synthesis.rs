@@ -34,7 +34,7 @@ pub(super) struct Blurred {
 
 impl Blurred {
     pub(super) fn of(mixed: &[Vec<Plane>], masks: &[Plane], g: &Group, factor: usize) -> Blurred {
-        let (rw, rh) = (masks[0].width, masks[0].height);
+        let (rw, rh) = (masks[0].width(), masks[0].height());
         let s = g.sigma / factor as f32;
         let near = g.near.iter().map(|&k| k as usize);
         let mut a = Plane::new(rw, rh, 1);
@@ -46,8 +46,8 @@ impl Blurred {
             .map(|c| {
                 let mut ac = Plane::new(rw, rh, 1);
                 for k in near.clone() {
-                    let (v, m) = (&mixed[k][c].data, &masks[k].data);
-                    for ((o, &v), &m) in ac.data.iter_mut().zip(v).zip(m) {
+                    let (v, m) = (mixed[k][c].data(), masks[k].data());
+                    for ((o, &v), &m) in ac.data_mut().iter_mut().zip(v).zip(m) {
                         *o += v * m;
                     }
                 }
@@ -131,7 +131,7 @@ pub(super) struct Spill {
 impl Spill {
     /// The sum of a far frame's blurred groups, in σ order.
     pub(super) fn sum(groups: &[Rc<Blurred>], factor: usize) -> Spill {
-        let (rw, rh) = (groups[0].cover.width, groups[0].cover.height);
+        let (rw, rh) = (groups[0].cover.width(), groups[0].cover.height());
         let mut colour = vec![Plane::new(rw, rh, 1); groups[0].colour.len()];
         let mut cover = Plane::new(rw, rh, 1);
         for g in groups {
@@ -155,12 +155,12 @@ impl Spill {
         guarded: &(dyn Fn(usize) -> bool + Sync),
         light: Light,
     ) -> usize {
-        let (w, ch) = (frame.width, frame.channels);
-        let (rw, rh) = (self.cover.width, self.cover.height);
+        let (w, ch) = (frame.width(), frame.channels());
+        let (rw, rh) = (self.cover.width(), self.cover.height());
         // Reduced pixels whose 2×2 block (what a bilinear sample there reads) holds any spill:
         // most of a frame holds none and is passed over without sampling.
         let spilt =
-            |x: usize, y: usize| self.cover.data[y.min(rh - 1) * rw + x.min(rw - 1)] >= TRACE;
+            |x: usize, y: usize| self.cover.data()[y.min(rh - 1) * rw + x.min(rw - 1)] >= TRACE;
         let active: Vec<bool> = (0..rw * rh)
             .map(|i| {
                 let (x, y) = (i % rw, i / rw);
@@ -170,7 +170,7 @@ impl Spill {
         let cols = Tap::all_reduced(w, self.factor, rw);
         let (mix, store) = (light.mixing(), light.storing());
         frame
-            .data
+            .data_mut()
             .par_chunks_mut(w * ch)
             .enumerate()
             .map(|(y, row)| {

@@ -56,13 +56,19 @@ fn scene_of(light: Light, radius: f32, blur: f32) -> (Vec<Image<u8>>, Vec<Plane>
             .iter()
             .zip(&far)
             .map(|(c, b)| {
-                let ac = Plane {
-                    data: c.data.iter().zip(&alpha.data).map(|(v, m)| v * m).collect(),
-                    ..*c
-                };
+                let ac = Plane::from_vec(
+                    c.width(),
+                    c.height(),
+                    1,
+                    c.data()
+                        .iter()
+                        .zip(alpha.data())
+                        .map(|(v, m)| v * m)
+                        .collect(),
+                );
                 let (ac, b) = (gaussian_blur(&ac, near_sigma), gaussian_blur(b, far_sigma));
                 let data = (0..SIZE * SIZE)
-                    .map(|i| light.storing()(ac.data[i] + (1.0 - a.data[i]) * b.data[i]))
+                    .map(|i| light.storing()(ac.data()[i] + (1.0 - a.data()[i]) * b.data()[i]))
                     .collect();
                 Plane::from_vec(SIZE, SIZE, 1, data)
             })
@@ -72,9 +78,9 @@ fn scene_of(light: Light, radius: f32, blur: f32) -> (Vec<Image<u8>>, Vec<Plane>
     let frames = vec![frame(0.0, 3.0), frame(blur / 2.0, 1.5), frame(blur, 0.0)];
     let background = far
         .iter()
-        .map(|b| Plane {
-            data: b.data.iter().map(|&v| light.storing()(v)).collect(),
-            ..*b
+        .map(|b| {
+            let data = b.data().iter().map(|&v| light.storing()(v)).collect();
+            Plane::from_vec(b.width(), b.height(), 1, data)
         })
         .collect();
     (frames, background)
@@ -110,7 +116,7 @@ fn unmix_covered(
 
 /// Pixel `i`'s three samples in `f`.
 fn pixel(f: &Image<u8>, i: usize) -> &[u8] {
-    &f.data[i * 3..][..3]
+    &f.data()[i * 3..][..3]
 }
 
 fn distance(i: usize) -> f32 {
@@ -153,7 +159,7 @@ fn halo_within(frame: &Image<u8>, truth: &[Plane], ring: std::ops::Range<f32>) -
     let sum: f32 = ring
         .iter()
         .flat_map(|&i| (0..3).map(move |c| (i, c)))
-        .map(|(i, c)| (frame.data[i * 3 + c] as f32 / 255.0 - truth[c].data[i]).powi(2))
+        .map(|(i, c)| (frame.data()[i * 3 + c] as f32 / 255.0 - truth[c].data()[i]).powi(2))
         .sum();
     (sum / (ring.len() * 3) as f32).sqrt()
 }
@@ -175,7 +181,7 @@ fn the_halo_is_taken_out_in_the_light_the_defocus_mixed_in() {
         let far_away = (0..SIZE * SIZE).filter(|&i| distance(i) > 30.0);
         assert!(far_away
             .into_iter()
-            .all(|i| frames[2].data[i * 3] == before[2].data[i * 3]));
+            .all(|i| frames[2].data()[i * 3] == before[2].data()[i * 3]));
         assert_eq!((&frames[0], &frames[1]), (&before[0], &before[1]));
         // Of the right side's 3 px the labels missed, the pixels clearly the disc's colour go
         // back to its frame (the stripes make the rest too close to call); outside the disc
@@ -414,13 +420,15 @@ fn discs(light: Light) -> ([(Light, Vec<Plane>); 2], Vec<Plane>) {
             for (k, a) in alpha.iter().enumerate() {
                 let s = 1.5 * (l as f32 - k as f32).abs();
                 let ac =
-                    plane(&|x, y| a.data[y as usize * w + x as usize] * texture(x, y, k as f32));
+                    plane(&|x, y| a.data()[y as usize * w + x as usize] * texture(x, y, k as f32));
                 let (a, ac) = (gaussian_blur(a, s), gaussian_blur(&ac, s));
-                for ((v, a), c) in acc.data.iter_mut().zip(&a.data).zip(&ac.data) {
+                for ((v, a), c) in acc.data_mut().iter_mut().zip(a.data()).zip(ac.data()) {
                     *v = c + (1.0 - a) * *v;
                 }
             }
-            acc.data.iter_mut().for_each(|v| *v = light.storing()(*v));
+            acc.data_mut()
+                .iter_mut()
+                .for_each(|v| *v = light.storing()(*v));
             acc
         })
         .collect();
@@ -433,7 +441,7 @@ fn discs(light: Light) -> ([(Light, Vec<Plane>); 2], Vec<Plane>) {
     let behind = plane(&|x, y| {
         1.0 - alpha
             .iter()
-            .map(|a| a.data[y as usize * w + x as usize])
+            .map(|a| a.data()[y as usize * w + x as usize])
             .sum::<f32>()
     });
     let masks = alpha.into_iter().chain([behind]).collect();
@@ -522,7 +530,7 @@ fn pairs_sharing_a_blur_are_blurred_once_to_the_same_spill() {
         Spill::sum(&[Rc::new(Blurred::of(&mixed, &masks, &g, factor))], factor)
     };
     let close = |got: &Plane, want: Vec<f32>| {
-        got.data
+        got.data()
             .iter()
             .zip(want)
             .all(|(g, w)| (g - w).abs() <= 1e-5 * w.abs().max(1.0))
@@ -535,7 +543,7 @@ fn pairs_sharing_a_blur_are_blurred_once_to_the_same_spill() {
             .collect();
         let sum = |f: &dyn Fn(&Spill) -> &Plane| -> Vec<f32> {
             (0..w * h)
-                .map(|i| parts.iter().map(|s| f(s).data[i]).sum())
+                .map(|i| parts.iter().map(|s| f(s).data()[i]).sum())
                 .collect()
         };
         assert!(close(&spill.cover, sum(&|s| &s.cover)), "far frame {l}");
@@ -545,7 +553,7 @@ fn pairs_sharing_a_blur_are_blurred_once_to_the_same_spill() {
                 "far frame {l}, channel {c}"
             );
         }
-        assert!(spill.cover.data.iter().any(|&a| a > 0.1));
+        assert!(spill.cover.data().iter().any(|&a| a > 0.1));
     }
     // With room for none, nothing is kept: the shared group is blurred again.
     let mut tight = Blurs::new(&pairs, 5, 3);
