@@ -40,25 +40,14 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegisterParams {
     /// Keypoints are found on the largest pyramid level with at most this many pixels: finer
-    /// levels add time, not matches, since most of every frame is defocused anyway. At 400k a
-    /// 0.3 MP frame was searched whole, more pixels than a 3 MP frame's quarter size (197k):
-    /// registration was most of a small stack's fuse. At 200k (half size there, a 1.2 MP
-    /// frame's quarter) it costs 8 × 0.3 MP 0.69 → 0.38 s of CPU, 10 × 1.2 MP smooth 1.39 →
-    /// 1.09; the dense refinement lands on the same affines (sim-data/handheld: within 3e-5 px
-    /// at the corners) and every frame of those stacks still matches, smooth's farthest two now
-    /// directly; PSNR smooth 24.16 → 24.16, noisy 26.64 → 26.63 dB. Frames of 1.6–3.1 MP detect
-    /// on the same level as before.
+    /// levels add time, not matches, since most of every frame is defocused anyway, and the
+    /// dense refinement that follows lands on the same affines from a coarser start.
     pub detect_pixels: usize,
     /// The dense refinement stops at the largest level with at most this many pixels, and at
-    /// half size at the finest (full size was worse: the defocus equalisation's blurs no longer
-    /// span a stack's defocus there). Finer is more precise: sub-pixel misregistration is most
-    /// of what keeps the output from the truth away from depth steps (the tripod stack's
-    /// affines were 0.1–0.7 px off at 200k, level 2 of 1600×1200). With the defocus pairing
-    /// judged a level coarser and every fourth pixel stepped on, 480k (level 1 there) gives the
-    /// 1600×1200 layered stacks (tripod / 3 px / 6 px parallax) 32.14 → 33.18 / 26.30 → 26.76 /
-    /// 26.32 → 26.60 dB and 10 × 1.2 MP smooth / noisy 23.21 → 24.16 / 26.49 → 26.64 for
-    /// 0.02–0.05 s more CPU a frame; 800k (level 1 of a 3 MP frame) took 10 × 3.1 MP only
-    /// 30.28 → 30.30 dB, for 20 % more CPU.
+    /// half size at the finest (at full size the defocus equalisation's blurs no longer span a
+    /// stack's defocus). Finer is more precise: sub-pixel misregistration is most of what keeps
+    /// the output from the truth away from depth steps; beyond this, more pixels cost CPU and
+    /// gained nothing measurable (the speed and quality records in `docs/records/`).
     pub refine_pixels: usize,
     /// Pyramid levels the dense refinement visits, coarse to fine; 0 keeps the keypoint affine.
     pub refine_levels: usize,
@@ -210,8 +199,7 @@ pub fn finest_level(width: usize, height: usize, p: &RegisterParams) -> usize {
 
 /// [`register`] of frames of any sample type and channels (one size), each frame's luma made a
 /// row at a time as its pyramid is reduced ([`levels::Luma`]), so no full-resolution luma
-/// plane is made (12 MB a frame at 3 MP; about a tenth of amber_macro's page faults were
-/// theirs).
+/// plane is made (12 MB a frame at 3 MP, and page faults to match).
 /// `concurrent_frames` frames are prepared at once, each with its levels and keypoint scale
 /// space in memory (about 6 bytes a pixel); 0: one per thread. A memory budget lowers it (see
 /// `stack::memory`).

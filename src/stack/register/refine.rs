@@ -21,18 +21,14 @@ const N: usize = 8;
 /// Weight of the finest level's pixels where the frame is blurrier than the reference (the
 /// equalisation blurs the reference there). A frame is fused only where it is sharp, so its
 /// affine is fitted chiefly there; under parallax it then follows the depth the frame is focused
-/// on rather than an average of every depth (6 px of parallax at level 1: the far frame, most of
-/// the picture, 1.18 → 0.64 px off where it is sharp). 1600×1200 layered linear-light stacks at
-/// level 2, tripod / 3 px / 6 px parallax: 1 (unweighted) 32.41 / 25.06 / 24.66 dB, 0.3 32.02 /
-/// 25.97 / 25.97, 0.2 31.94 / 26.23 / 26.34, 0.1 31.56 / 26.57 / 26.86: fewer pixels pin the
-/// affine less well where nothing moves. Parallax is the normal case of a hand-held phone.
+/// on rather than an average of every depth. Lower weights follow parallax better but pin the
+/// affine less well where nothing moves; 0.2 balances the two, and parallax is the normal case
+/// of a hand-held phone.
 const BLURRIER: f32 = 0.2;
 /// Huber threshold in robust standard deviations of the residual.
 const HUBER: f32 = 1.5;
 /// The finest level's Gauss–Newton steps sample every `STRIDE`-th pixel of every `STRIDE`-th
-/// row: its gradients keep that level's precision at a quarter of the cost. On the 1600×1200
-/// layered stacks (tripod / 3 px / 6 px parallax, fine level 1) every pixel gave 32.72 / 26.68
-/// / 26.62 dB, every fourth 33.18 / 26.76 / 26.60.
+/// row: its gradients keep that level's precision at a quarter of the cost.
 const STRIDE: usize = 2;
 
 /// A template image with its gradients (central differences, zero on the border).
@@ -134,10 +130,9 @@ struct Fit {
 
 /// What a worker's refinements keep from one frame to the next: the blur stacks of the finest
 /// level and the one above, and the Gauss–Newton steps' buffers, each the same size for every
-/// frame of a stack. Made afresh for every frame, the stacks were a fifth of the page faults
-/// of fusing a 10 × 1.2 MP stack, whose kernel time is a fifth of its CPU. The planes compared
-/// with the template are not kept: held all through the finest level's steps they raised the
-/// fuse's peak by 7–12 MB (1.2–1.9 MP frames), for a few more milliseconds.
+/// frame of a stack: made afresh for every frame they cost page faults and kernel time. The
+/// planes compared with the template are not kept: held through the finest level's steps they
+/// would raise the fuse's peak memory for little time saved.
 #[derive(Default)]
 pub struct Buffers {
     stack: Stack,
