@@ -38,11 +38,16 @@ impl Case {
             })
             .collect()
     }
-    /// Runs fuse into `out.jpg`; asserts failure and returns stderr.
+    /// Runs fuse without alignment into `out`; asserts failure and returns stderr.
     fn fails(&self, frames: &[PathBuf], out: &Path) -> String {
+        self.fails_with(&["--no-align"], frames, out)
+    }
+    /// Runs fuse with `args` into `out`; asserts a one-line failure, nothing left behind, and
+    /// returns stderr.
+    fn fails_with(&self, args: &[&str], frames: &[PathBuf], out: &Path) -> String {
         let o = focusd()
             .arg("fuse")
-            .arg("--no-align")
+            .args(args)
             .arg("-o")
             .arg(out)
             .args(frames)
@@ -134,6 +139,27 @@ fn frames_of_different_sizes_are_named() {
         err.contains("odd.png") && err.contains("40x32") && err.contains("48x32"),
         "{err}"
     );
+}
+
+/// Frames that pass the 8x8 check but are too small for registration's pyramid are refused in
+/// one line naming their size and the minimum, whichever side is short.
+#[test]
+fn frames_too_small_to_register_are_refused() {
+    for (w, h) in [(320, 8), (320, 12), (320, 15), (12, 320), (15, 15)] {
+        let c = Case::new();
+        let f: Vec<PathBuf> = (0..3)
+            .map(|i| {
+                let p = c.path(&format!("f{i}.png"));
+                write_png(&p, w, h, i);
+                p
+            })
+            .collect();
+        let err = c.fails_with(&[], &f, &c.path("out.jpg"));
+        assert!(
+            err.contains(&format!("{w}x{h}")) && err.contains("at least 16x16"),
+            "{w}x{h}: {err}"
+        );
+    }
 }
 
 #[test]
