@@ -162,6 +162,33 @@ fn frames_too_small_to_register_are_refused() {
     }
 }
 
+/// A grey frame in a colour stack, or a colour frame in a grey one, is refused by name rather
+/// than gain-matched into a patchwork.
+#[test]
+fn grey_and_colour_frames_are_not_mixed() {
+    let c = Case::new();
+    let mut colour = c.frames(2);
+    let grey = c.path("grey.png");
+    image::GrayImage::from_fn(48, 32, |x, y| image::Luma([(x * 5 + y) as u8]))
+        .save(&grey)
+        .unwrap();
+    colour.push(grey.clone());
+    let err = c.fails_with(&[], &colour, &c.path("out.png"));
+    assert!(
+        err.contains("grey.png: frame is grey but")
+            && err.contains("f0.png is colour")
+            && err.contains("cannot mix grey and colour"),
+        "{err}"
+    );
+    let mut greys = vec![grey.clone(), grey];
+    greys.push(colour[1].clone());
+    let err = c.fails_with(&[], &greys, &c.path("out.png"));
+    assert!(
+        err.contains("f1.png: frame is colour but") && err.contains("grey.png is grey"),
+        "{err}"
+    );
+}
+
 #[test]
 fn one_frame_and_no_frames_are_refused() {
     let c = Case::new();
