@@ -15,7 +15,8 @@ use std::path::{Path, PathBuf};
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
     /// The only directory the daemon writes images to. Relative paths are relative to the
-    /// working directory (systemd: the state directory). Unset: the session service writes to
+    /// working directory (systemd: the state directory); the daemon makes them absolute when
+    /// it loads the config (`output_dir::settle`). Unset: the session service writes to
     /// `focusd` in the user's Pictures folder (`service::pictures`), the system service to
     /// `focusd` in its working directory ([`SYSTEM_OUTPUT_DIR`]).
     pub dir: Option<PathBuf>,
