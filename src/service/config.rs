@@ -8,6 +8,7 @@ use crate::backend::v4l2::V4l2Config;
 use crate::base::setting::{Bounds, Invalid};
 use crate::capture::sweep::SweepConfig;
 use serde::{Deserialize, Serialize};
+use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 
 /// Where results go (the `[output]` table).
@@ -51,6 +52,16 @@ impl OutputConfig {
             return Err(Invalid::new(
                 "dir",
                 "dir is empty: name the directory outputs go to, or leave it out",
+            ));
+        }
+        if self
+            .dir
+            .as_ref()
+            .is_some_and(|d| d.as_os_str().as_bytes().contains(&0))
+        {
+            return Err(Invalid::new(
+                "dir",
+                "dir contains a NUL byte, which no path can hold",
             ));
         }
         Ok(())
