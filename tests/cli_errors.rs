@@ -127,6 +127,27 @@ fn corrupt_and_truncated_images_are_named() {
     );
 }
 
+/// A BigTIFF (TIFF with 64-bit offsets, either byte order) is refused by that name, not as
+/// "not an image".
+#[test]
+fn bigtiff_is_refused_by_name() {
+    for (name, header) in [
+        ("little.tif", *b"II\x2b\0\x08\0\0\0\x10\0\0\0\0\0\0\0"),
+        ("big.tif", *b"MM\0\x2b\0\x08\0\0\0\0\0\0\0\0\0\x10"),
+    ] {
+        let c = Case::new();
+        let mut f = c.frames(2);
+        let big = c.path(name);
+        std::fs::write(&big, header).unwrap();
+        f.push(big);
+        let err = c.fails(&f, &c.path("out.png"));
+        assert!(
+            err.contains(name) && err.contains("BigTIFF (64-bit offsets) is not supported"),
+            "{err}"
+        );
+    }
+}
+
 #[test]
 fn frames_of_different_sizes_are_named() {
     let c = Case::new();
