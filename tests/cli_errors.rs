@@ -38,11 +38,16 @@ impl Case {
             })
             .collect()
     }
-    /// Runs fuse into `out.jpg`; asserts failure and returns stderr.
+    /// Runs fuse without alignment into `out`; asserts failure and returns stderr.
     fn fails(&self, frames: &[PathBuf], out: &Path) -> String {
+        self.fails_with(&["--no-align"], frames, out)
+    }
+    /// Runs fuse with `args` into `out`; asserts a one-line failure, nothing left behind, and
+    /// returns stderr.
+    fn fails_with(&self, args: &[&str], frames: &[PathBuf], out: &Path) -> String {
         let o = focusd()
             .arg("fuse")
-            .arg("--no-align")
+            .args(args)
             .arg("-o")
             .arg(out)
             .args(frames)
@@ -122,6 +127,27 @@ fn corrupt_and_truncated_images_are_named() {
     );
 }
 
+/// A BigTIFF (TIFF with 64-bit offsets, either byte order) is refused by that name, not as
+/// "not an image".
+#[test]
+fn bigtiff_is_refused_by_name() {
+    for (name, header) in [
+        ("little.tif", *b"II\x2b\0\x08\0\0\0\x10\0\0\0\0\0\0\0"),
+        ("big.tif", *b"MM\0\x2b\0\x08\0\0\0\0\0\0\0\0\0\x10"),
+    ] {
+        let c = Case::new();
+        let mut f = c.frames(2);
+        let big = c.path(name);
+        std::fs::write(&big, header).unwrap();
+        f.push(big);
+        let err = c.fails(&f, &c.path("out.png"));
+        assert!(
+            err.contains(name) && err.contains("BigTIFF (64-bit offsets) is not supported"),
+            "{err}"
+        );
+    }
+}
+
 #[test]
 fn frames_of_different_sizes_are_named() {
     let c = Case::new();
@@ -132,6 +158,54 @@ fn frames_of_different_sizes_are_named() {
     let err = c.fails(&f, &c.path("out.png"));
     assert!(
         err.contains("odd.png") && err.contains("40x32") && err.contains("48x32"),
+        "{err}"
+    );
+}
+
+/// Frames that pass the 8x8 check but are too small for registration's pyramid are refused in
+/// one line naming their size and the minimum, whichever side is short.
+#[test]
+fn frames_too_small_to_register_are_refused() {
+    for (w, h) in [(320, 8), (320, 12), (320, 15), (12, 320), (15, 15)] {
+        let c = Case::new();
+        let f: Vec<PathBuf> = (0..3)
+            .map(|i| {
+                let p = c.path(&format!("f{i}.png"));
+                write_png(&p, w, h, i);
+                p
+            })
+            .collect();
+        let err = c.fails_with(&[], &f, &c.path("out.jpg"));
+        assert!(
+            err.contains(&format!("{w}x{h}")) && err.contains("at least 16x16"),
+            "{w}x{h}: {err}"
+        );
+    }
+}
+
+/// A grey frame in a colour stack, or a colour frame in a grey one, is refused by name rather
+/// than gain-matched into a patchwork.
+#[test]
+fn grey_and_colour_frames_are_not_mixed() {
+    let c = Case::new();
+    let mut colour = c.frames(2);
+    let grey = c.path("grey.png");
+    image::GrayImage::from_fn(48, 32, |x, y| image::Luma([(x * 5 + y) as u8]))
+        .save(&grey)
+        .unwrap();
+    colour.push(grey.clone());
+    let err = c.fails_with(&[], &colour, &c.path("out.png"));
+    assert!(
+        err.contains("grey.png: frame is grey but")
+            && err.contains("f0.png is colour")
+            && err.contains("cannot mix grey and colour"),
+        "{err}"
+    );
+    let mut greys = vec![grey.clone(), grey];
+    greys.push(colour[1].clone());
+    let err = c.fails_with(&[], &greys, &c.path("out.png"));
+    assert!(
+        err.contains("f1.png: frame is colour but") && err.contains("grey.png is grey"),
         "{err}"
     );
 }

@@ -115,12 +115,12 @@ fn sixteen_bit_tiff_and_png_stay_sixteen_bit() {
         img.save(&p).unwrap();
         frames.push(p);
     }
-    // A mixed stack: an 8-bit gray PNG joins the 16-bit colour TIFFs.
-    let gray = dir.path().join("g.png");
-    image::GrayImage::from_fn(40, 30, |x, _| image::Luma([(x * 6) as u8]))
-        .save(&gray)
+    // A mixed stack: an 8-bit PNG joins the 16-bit TIFFs.
+    let eight = dir.path().join("e.png");
+    image::RgbImage::from_fn(40, 30, |x, _| image::Rgb([(x * 6) as u8, 90, 200]))
+        .save(&eight)
         .unwrap();
-    frames.push(gray);
+    frames.push(eight);
     for out in ["out.png", "out.tif"] {
         let out = dir.path().join(out);
         let mut args: Vec<&Path> = vec![&out];

@@ -452,6 +452,47 @@ fn without_an_output_dir_pictures_land_in_the_users_localised_pictures_folder() 
     });
 }
 
+/// A relative `[output] dir` (from the service's working directory) is made absolute at start:
+/// `Finished`, `LastResult`, `trigger --wait` and the report give paths a client in any
+/// directory can open.
+#[test]
+fn a_relative_output_dir_is_reported_as_absolute_paths() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cwd = std::env::current_dir().unwrap();
+    let up: PathBuf = cwd.components().skip(1).map(|_| "..").collect();
+    let relative = up.join(tmp.path().strip_prefix("/").unwrap()).join("out");
+    let bus = Bus::start();
+    let d = Daemon::start_full(
+        &bus,
+        Some(&bundle_dir("calm")),
+        false,
+        &[],
+        &format!("[output]\ndir = {relative:?}\n"),
+        &[],
+    );
+    let absolute = |p: &str| {
+        assert!(Path::new(p).is_absolute() && Path::new(p).is_file(), "{p}");
+        assert!(Path::new(p).starts_with(cwd.join(&relative)), "{p}");
+    };
+    runtime().block_on(async {
+        let (_conn, proxy) = connect(&bus).await;
+        let path = capture_and_wait(&proxy).await.unwrap();
+        absolute(&path);
+        assert_eq!(proxy.last_result().await.unwrap(), path);
+        let r: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(Path::new(&path).with_extension("json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(r["output"].as_str(), Some(path.as_str()));
+    });
+    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .args(["trigger", "--wait", "--address", &bus.address])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", d.log());
+    absolute(String::from_utf8_lossy(&o.stdout).trim());
+}
+
 /// A trigger key device that is not one (here /dev/null, then a path that does not exist) is a
 /// log line naming it; the service serves D-Bus captures all the same.
 #[test]

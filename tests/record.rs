@@ -108,6 +108,12 @@ fn config_files_are_checked_naming_the_line() {
             3,
             "format = \"webp\" is not one of",
         ),
+        // What `serve` could not create, `check-config` refuses with the same message.
+        (
+            "[output]\ndir = \"out\\u0000put\"\n",
+            2,
+            "dir contains a NUL byte, which no path can hold",
+        ),
     ] {
         let bad = dir.path().join("bad.toml");
         std::fs::write(&bad, text).unwrap();

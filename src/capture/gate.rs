@@ -142,6 +142,17 @@ pub fn measure(
                 blur += (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt() * dt;
             }
         }
+        // Finite readings whose squares overflow: no sensor moves that fast, and a report
+        // cannot hold an infinite sum.
+        if sums[k].iter().any(|v| !v.is_finite()) || !(blur * focal_px).is_finite() {
+            return Err(CaptureError::device(
+                "IMU",
+                format!(
+                    "{sensor:?} readings during the exposure {start}..{end} ns are too large to \
+                     sum: is the sensor's scale right?"
+                ),
+            ));
+        }
     }
     let limits = [thresholds.gyro, thresholds.accel];
     let (mut worst_ratio, mut worst_axis) = (0.0, AXES[0][0]);
@@ -244,6 +255,19 @@ mod tests {
         bad[3].v[1] = f64::NAN;
         let err = measure(&bad, (0, 33_000_000), &rest, &th, 1.0).unwrap_err();
         assert!(err.to_string().contains("not a number"), "{err}");
+        // Finite readings whose sums overflow, on either sensor.
+        for k in [2, 3] {
+            let mut huge = s.clone();
+            huge[k].v[0] = 1e200;
+            let err = measure(&huge, (0, 33_000_000), &rest, &th, 1.0).unwrap_err();
+            let sensor = ["Gyro", "Accel"][k - 2];
+            assert!(
+                err.to_string().contains(&format!(
+                    "{sensor} readings during the exposure 0..33000000 ns are too large to sum"
+                )),
+                "{err}"
+            );
+        }
         assert_eq!(
             Rest::from_samples(&s),
             Some(Rest {

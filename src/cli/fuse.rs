@@ -121,8 +121,9 @@ pub fn run(a: &FuseArgs) -> Result<()> {
 }
 
 /// Reads every frame's header and refuses, before any frame is decoded, frames of different
-/// sizes and a stack that does not fit the memory budget even in its leanest plan, naming the
-/// `--memory` it needs. (The daemon's frames come from its own camera: it fuses and warns.)
+/// sizes, a stack that mixes grey and colour frames (one kind would be gain-matched to the
+/// other, a patchwork), and a stack that does not fit the memory budget even in its leanest
+/// plan, naming the `--memory` it needs. (The daemon's frames come from its own camera: it fuses and warns.)
 fn check_memory(a: &FuseArgs) -> Result<()> {
     let headers: Vec<Header> = a
         .frames
@@ -141,11 +142,25 @@ fn check_memory(a: &FuseArgs) -> Result<()> {
             );
         }
     }
+    let model = |channels| if channels == 1 { "grey" } else { "colour" };
+    if let Some((d, p)) = headers
+        .iter()
+        .zip(&a.frames)
+        .find(|(d, _)| d.channels != headers[0].channels)
+    {
+        bail!(
+            "{}: frame is {} but {} is {}; a stack cannot mix grey and colour frames",
+            p.display(),
+            model(d.channels),
+            a.frames[0].display(),
+            model(headers[0].channels)
+        );
+    }
     let stack = StackShape {
         frames: headers.len(),
         width: w,
         height: h,
-        channels: headers.iter().map(|d| d.channels).max().unwrap_or(3),
+        channels: headers[0].channels,
         sample_bytes: headers.iter().map(|d| d.sample_bytes).max().unwrap_or(1),
     };
     let plan = memory_plan(&stack, &params(a, headers.len()));
@@ -181,31 +196,12 @@ fn to_u16(d: Decoded) -> Image<u16> {
     }
 }
 
-/// Gray frames in a colour stack become RGB so every frame has the same channels.
-fn match_channels<T: Sample>(frames: Vec<Image<T>>) -> Vec<Image<T>> {
-    if frames.iter().all(|f| f.channels() == frames[0].channels()) {
-        return frames;
-    }
-    frames
-        .into_iter()
-        .map(|f| {
-            if f.channels() == 3 {
-                f
-            } else {
-                let data = f.data().iter().flat_map(|&v| [v, v, v]).collect();
-                Image::from_vec(f.width(), f.height(), 3, data)
-            }
-        })
-        .collect()
-}
-
 fn run_typed<T: Sample>(
     a: &FuseArgs,
     frames: Vec<Image<T>>,
     load_time: std::time::Duration,
     mut outs: Outputs,
 ) -> Result<()> {
-    let frames = match_channels(frames);
     let n = frames.len();
     let (w, h) = (frames[0].width(), frames[0].height());
     let params = params(a, n);

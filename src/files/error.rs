@@ -18,6 +18,10 @@ pub enum FileError {
     },
     #[error("{path}: not a JPEG, PNG or TIFF image")]
     NotAnImage { path: String },
+    #[error(
+        "{path}: BigTIFF (64-bit offsets) is not supported; save the frame as a TIFF, PNG or JPEG"
+    )]
+    BigTiff { path: String },
     #[error("{path}: corrupt or truncated image: {reason}")]
     Truncated { path: String, reason: String },
     #[error("{path}: corrupt or unsupported image: {reason}")]

@@ -126,7 +126,11 @@ fn open_decoder(path: &Path) -> Result<impl ImageDecoder> {
         error,
     })?;
     let mut file = BufReader::new(file);
-    let format = image::guess_format(file.fill_buf().map_err(cannot_read)?)
+    let start = file.fill_buf().map_err(cannot_read)?;
+    if start.starts_with(b"II\x2b\0") || start.starts_with(b"MM\0\x2b") {
+        return Err(FileError::BigTiff { path: shown(path) });
+    }
+    let format = image::guess_format(start)
         .ok()
         .filter(|f| matches!(f, ImageFormat::Jpeg | ImageFormat::Png | ImageFormat::Tiff))
         .ok_or_else(|| FileError::NotAnImage { path: shown(path) })?;

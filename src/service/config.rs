@@ -8,6 +8,7 @@ use crate::backend::v4l2::V4l2Config;
 use crate::base::setting::{Bounds, Invalid};
 use crate::capture::sweep::SweepConfig;
 use serde::{Deserialize, Serialize};
+use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 
 /// Where results go (the `[output]` table).
@@ -15,7 +16,8 @@ use std::path::{Path, PathBuf};
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
     /// The only directory the daemon writes images to. Relative paths are relative to the
-    /// working directory (systemd: the state directory). Unset: the session service writes to
+    /// working directory (systemd: the state directory); the daemon makes them absolute when
+    /// it loads the config (`output_dir::settle`). Unset: the session service writes to
     /// `focusd` in the user's Pictures folder (`service::pictures`), the system service to
     /// `focusd` in its working directory ([`SYSTEM_OUTPUT_DIR`]).
     pub dir: Option<PathBuf>,
@@ -50,6 +52,16 @@ impl OutputConfig {
             return Err(Invalid::new(
                 "dir",
                 "dir is empty: name the directory outputs go to, or leave it out",
+            ));
+        }
+        if self
+            .dir
+            .as_ref()
+            .is_some_and(|d| d.as_os_str().as_bytes().contains(&0))
+        {
+            return Err(Invalid::new(
+                "dir",
+                "dir contains a NUL byte, which no path can hold",
             ));
         }
         Ok(())

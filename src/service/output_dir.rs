@@ -15,6 +15,18 @@ pub fn prepare(out: &OutputConfig) -> Result<(), ServiceError> {
     })
 }
 
+/// Creates the output directory if needed and makes its path absolute, so every path the
+/// daemon reports (signals, `LastResult`, notifications, reports) opens from any directory.
+pub fn settle(out: &mut OutputConfig) -> Result<(), ServiceError> {
+    prepare(out)?;
+    let dir = std::path::absolute(out.dir()).map_err(|error| ServiceError::OutputDir {
+        dir: out.dir().display().to_string(),
+        error,
+    })?;
+    out.dir = Some(dir);
+    Ok(())
+}
+
 /// The image and report paths of a capture made now: `focus-YYYYMMDD-HHMMSS.jpg` in UTC, with
 /// `-2`, `-3`, ... when that name is taken.
 pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf), ServiceError> {
@@ -68,6 +80,25 @@ mod tests {
         assert_eq!(utc_stamp(951_782_400), "20000229-000000");
         assert_eq!(utc_stamp(1_796_083_199), "20261130-235959");
         assert_eq!(utc_stamp(4_107_542_400), "21000301-000000");
+    }
+
+    /// A relative `dir` (here one climbing from the working directory into a temporary one)
+    /// is made absolute, and so is every path made in it.
+    #[test]
+    fn a_relative_dir_is_settled_as_an_absolute_one() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cwd = std::env::current_dir().unwrap();
+        let up: std::path::PathBuf = cwd.components().skip(1).map(|_| "..").collect();
+        let relative = up.join(tmp.path().strip_prefix("/").unwrap()).join("out");
+        let mut out = OutputConfig {
+            dir: Some(relative.clone()),
+            ..OutputConfig::default()
+        };
+        settle(&mut out).unwrap();
+        assert!(out.dir().is_absolute() && out.dir().is_dir(), "{out:?}");
+        assert_eq!(out.dir(), cwd.join(&relative));
+        let (image, report) = next_paths(&out).unwrap();
+        assert!(image.is_absolute() && report.is_absolute());
     }
 
     #[test]

@@ -23,7 +23,8 @@ use tokio::sync::mpsc::unbounded_channel;
 
 type Result<T> = std::result::Result<T, ServiceError>;
 
-/// The config (built-in defaults without a file), with its output directory chosen and ready.
+/// The config (built-in defaults without a file), with its output directory chosen, ready and
+/// absolute.
 pub(super) fn load(path: &Option<PathBuf>, bus: &Bus) -> Result<Config> {
     let mut config = match path {
         Some(p) => Config::load(p)?,
@@ -44,7 +45,7 @@ pub(super) fn load(path: &Option<PathBuf>, bus: &Bus) -> Result<Config> {
             ),
         }
     }
-    output_dir::prepare(&config.output)?;
+    output_dir::settle(&mut config.output)?;
     Ok(config)
 }
 

@@ -4,6 +4,10 @@ use crate::stack::image::{Image, Plane, Sample};
 use crate::stack::pyramid::{reduce, RowSource};
 use crate::stack::transform::Affine;
 
+/// The smallest side a level is reduced from: registration, which never works at full size,
+/// needs frames of at least this many pixels each way.
+pub const MIN_SIDE: usize = 16;
+
 /// Levels `first..first + planes.len()` of a Burt–Adelson pyramid: pixel (x, y) of level k sits
 /// at (2^k·x, 2^k·y) in full resolution (`reduce` keeps even pixels' centres).
 pub struct Levels {
@@ -42,7 +46,7 @@ impl Levels {
         let mut cur: Option<Plane> = None;
         for k in 1..=last {
             let size = cur.as_ref().map_or((w, h), |p| (p.width(), p.height()));
-            if size.0.min(size.1) < 16 {
+            if size.0.min(size.1) < MIN_SIDE {
                 break;
             }
             let next = match &cur {

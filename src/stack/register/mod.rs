@@ -29,7 +29,7 @@ mod refine;
 use super::image::{Image, Plane, Sample};
 use super::transform::{Affine, OffsetField};
 use super::{NoProgress, Progress, Stage};
-use levels::{level_within, Levels};
+use levels::{level_within, Levels, MIN_SIDE};
 use matching::Features;
 use ransac::{Fit, Pair};
 use rayon::prelude::*;
@@ -158,6 +158,8 @@ pub enum RegisterError {
         ref_width: usize,
         ref_height: usize,
     },
+    #[error("frames of {width}x{height} are too small to register (at least {min}x{min})", min = MIN_SIDE)]
+    TooSmall { width: usize, height: usize },
     #[error(
         "frame {frame} cannot be registered: only {inliers} consistent keypoint matches with the \
          reference or its neighbours, {needed} needed (is it from this stack?)"
@@ -226,6 +228,12 @@ pub fn register_with<T: Sample>(
     }
     let size = (frames[reference].width(), frames[reference].height());
     let (w, h) = size;
+    if w.min(h) < MIN_SIDE {
+        return Err(RegisterError::TooSmall {
+            width: w,
+            height: h,
+        });
+    }
     let det = level_within(w, h, p.detect_pixels);
     // Never full size: the defocus equalisation's blurs (up to 5.7 level pixels) fall short of
     // a stack's defocus there (640×480 hand-held: 0.20 px mean corner error at full size, 0.16
