@@ -35,7 +35,16 @@ enum Command {
 fn main() -> ExitCode {
     focusd::base::malloc::tune();
     let args = Args::parse();
-    let result = match &args.command {
+    let writes_files = matches!(
+        args.command,
+        Command::Capture(_) | Command::Record(_) | Command::Fuse(_) | Command::Simulate(_)
+    );
+    let result = if writes_files {
+        cli::interrupt::clean_up_on_interrupt()
+    } else {
+        Ok(())
+    };
+    let result = result.and_then(|()| match &args.command {
         Command::Capture(a) => cli::capture::run(a),
         Command::Record(a) => cli::capture::record(a),
         Command::CheckConfig(a) => cli::check_config(a),
@@ -43,7 +52,7 @@ fn main() -> ExitCode {
         Command::Trigger(a) => cli::serve::trigger(a),
         Command::Fuse(a) => cli::fuse::run(a),
         Command::Simulate(a) => cli::simulate::run(a),
-    };
+    });
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -146,7 +146,7 @@ pub fn record(a: &RecordArgs) -> Result<()> {
         .samples(begin, now + tail)
         .or_else(|_| rig.imu.samples(begin, now))
         .context("reading back the IMU trace of the sweep")?;
-    let mut w = BundleWriter::create(&a.output, rig.camera.lens_range())
+    let mut w = BundleWriter::create_new(&a.output, rig.camera.lens_range())
         .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?;
     for t in &takes {
         let png = io::encode(&t.take.image, image::ImageFormat::Png, 100)?;

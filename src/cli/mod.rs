@@ -1,6 +1,7 @@
 //! Command-line front ends over the library.
 pub mod capture;
 pub mod fuse;
+pub mod interrupt;
 pub mod progress;
 pub mod serve;
 pub mod simulate;

@@ -4,5 +4,7 @@ pub mod bounded_read;
 mod error;
 pub mod imageio;
 pub mod outputs;
+mod temp;
 
 pub use error::FileError;
+pub use temp::abandon;

@@ -11,51 +11,22 @@
 
 use super::error::{shown, FileError};
 use super::imageio;
+use super::temp::{dir_of, live, remove_any, same_file, sweep_stale, temp_path};
 use crate::stack::image::{Image, Sample};
-use std::ffi::OsStr;
 use std::fs::{self, File, OpenOptions};
 use std::io::Write;
-use std::os::unix::ffi::OsStrExt;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
 type Result<T> = std::result::Result<T, FileError>;
 
-/// Bytes of the final name kept in a temporary name: with the dot, the process id and `.tmp`
-/// it stays under the 255 bytes a file name may have.
-const NAME_BYTES_KEPT: usize = 200;
-
-/// The temporary file an output is written through, beside it: `.NAME.PID.tmp`, with NAME cut
-/// to [`NAME_BYTES_KEPT`] bytes.
-pub fn temp_path(path: &Path) -> Result<PathBuf> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| FileError::NotAFilePath { path: shown(path) })?
-        .as_bytes();
-    let mut end = name.len().min(NAME_BYTES_KEPT);
-    // A UTF-8 name is cut between characters, so the temporary name stays readable.
-    if let Ok(s) = std::str::from_utf8(name) {
-        while !s.is_char_boundary(end) {
-            end -= 1;
-        }
-    }
-    let kept = OsStr::from_bytes(&name[..end]);
-    let mut tmp = std::ffi::OsString::from(".");
-    tmp.push(kept);
-    tmp.push(format!(".{}.tmp", std::process::id()));
-    Ok(dir.join(tmp))
-}
-
-/// Creates `path`'s temporary file. A stale one (a crash) or a link planted under its name is
-/// removed, and the new one is created exclusively, so the write never follows a link out of
-/// the directory.
+/// Creates `path`'s temporary file, exclusively, so the write never follows a link planted
+/// under its name out of the directory; a stale one of this process's id (a crash of an
+/// earlier process with the same id) is removed first.
 fn create_temp(path: &Path) -> Result<(PathBuf, File)> {
     let tmp = temp_path(path)?;
-    let _ = fs::remove_file(&tmp);
+    let mut live = live();
+    remove_any(&tmp);
     let file = OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -64,6 +35,10 @@ fn create_temp(path: &Path) -> Result<(PathBuf, File)> {
             path: shown(path),
             error,
         })?;
+    if let Err(e) = live.add(&tmp) {
+        let _ = fs::remove_file(&tmp);
+        return Err(e);
+    }
     Ok((tmp, file))
 }
 
@@ -85,7 +60,9 @@ pub fn save_image<T: Sample>(img: &Image<T>, path: &Path, quality: u8) -> Result
 /// [`Outputs`] (a thread blocked for good) leaves behind.
 pub fn discard_temp(path: &Path) {
     if let Ok(tmp) = temp_path(path) {
-        let _ = fs::remove_file(tmp);
+        let mut live = live();
+        remove_any(&tmp);
+        live.forget(&tmp);
     }
 }
 
@@ -104,19 +81,18 @@ pub struct Outputs {
 impl Outputs {
     /// Checks every output location: its directory exists and takes a new file, it is not a
     /// directory, it is none of the `inputs` (compared by device and inode, so links and other
-    /// spellings count), and no two outputs are the same file.
+    /// spellings count), and no two outputs are the same file. Temporary files a killed run
+    /// left in those directories are removed.
     pub fn check(outputs: &[&Path], inputs: &[&Path]) -> Result<Outputs> {
         let inode = |p: &Path| fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
         let mut set = Outputs { staged: Vec::new() };
+        let mut swept: Vec<PathBuf> = Vec::new();
         for &path in outputs {
-            let dir = match path.parent() {
-                Some(d) if !d.as_os_str().is_empty() => d,
-                _ => Path::new("."),
-            };
+            let dir = dir_of(path);
             if !dir.is_dir() {
                 return Err(FileError::NoDirectory {
                     path: shown(path),
-                    dir: shown(dir),
+                    dir: shown(&dir),
                 });
             }
             if path.is_dir() {
@@ -130,19 +106,24 @@ impl Outputs {
                     });
                 }
             }
+            if !swept.contains(&dir) {
+                sweep_stale(&dir);
+                swept.push(dir);
+            }
             let (tmp, file) = create_temp(path)?;
-            if let Some(other) = set.staged.iter().find(|s| same_file(&s.tmp, &tmp)) {
+            let staged = Staged {
+                path: path.to_path_buf(),
+                tmp,
+                file,
+                written: false,
+            };
+            if let Some(other) = set.staged.iter().find(|s| same_file(&s.tmp, &staged.tmp)) {
                 return Err(FileError::SameFile {
                     path: shown(path),
                     other: shown(&other.path),
                 });
             }
-            set.staged.push(Staged {
-                path: path.to_path_buf(),
-                tmp,
-                file,
-                written: false,
-            });
+            set.staged.push(staged);
         }
         Ok(set)
     }
@@ -166,41 +147,179 @@ impl Outputs {
         Ok(())
     }
 
-    /// Renames every output into place, once all of them are written.
+    /// Renames every output into place, once all of them are written. Where one rename fails
+    /// (a card remounted read-only, a full disk), those already made are undone, a replaced
+    /// file is put back, and every temporary file is removed: all land, or none.
     pub fn commit(mut self) -> Result<()> {
         if let Some(s) = self.staged.iter().find(|s| !s.written) {
             return Err(FileError::NothingWritten {
                 path: shown(&s.path),
             });
         }
-        for s in std::mem::take(&mut self.staged) {
-            let done = fs::rename(&s.tmp, &s.path);
-            if let Err(e) = done {
+        // Held throughout, so an interruption waits for the renames (or the undoing).
+        let mut live = live();
+        let staged = std::mem::take(&mut self.staged);
+        let result = rename_all(&staged);
+        for s in &staged {
+            if result.is_err() {
                 let _ = fs::remove_file(&s.tmp);
-                return Err(FileError::Write {
-                    path: shown(&s.path),
-                    error: e,
-                });
             }
+            live.forget(&s.tmp);
         }
-        Ok(())
+        result
     }
 }
 
-/// Two temporary files just created are the same file when their inodes are: the same output
-/// spelled two ways gives the same temporary name.
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (fs::metadata(a), fs::metadata(b)) {
-        (Ok(a), Ok(b)) => (a.dev(), a.ino()) == (b.dev(), b.ino()),
-        _ => false,
+/// Renames each staged file into place, keeping what it replaces under a second temporary
+/// name until all are in, so a failed rename can undo the ones before it.
+fn rename_all(staged: &[Staged]) -> Result<()> {
+    let mut kept: Vec<Option<PathBuf>> = Vec::new();
+    let mut result = Ok(());
+    for s in staged {
+        let kept_as = match keep_replaced(s) {
+            Ok(k) => k,
+            Err(e) => {
+                result = Err(e);
+                break;
+            }
+        };
+        if let Err(error) = fs::rename(&s.tmp, &s.path) {
+            if let Some(k) = &kept_as {
+                put_back(k, &s.path);
+            }
+            result = Err(FileError::Write {
+                path: shown(&s.path),
+                error,
+            });
+            break;
+        }
+        kept.push(kept_as);
     }
+    if result.is_err() {
+        for (s, k) in staged.iter().zip(&kept) {
+            match k {
+                Some(k) => put_back(k, &s.path),
+                None => {
+                    let _ = fs::remove_file(&s.path);
+                }
+            }
+        }
+    } else {
+        for k in kept.into_iter().flatten() {
+            let _ = fs::remove_file(k);
+        }
+    }
+    result
+}
+
+/// Puts the file kept as `kept` back under `path`. Where it is still there (a hard link of
+/// the file under `path`) the second name is only removed; where it cannot be put back it is
+/// left, so the user's file is never lost.
+fn put_back(kept: &Path, path: &Path) {
+    if same_file(kept, path) {
+        let _ = fs::remove_file(kept);
+    } else if let Err(e) = fs::rename(kept, path) {
+        tracing::warn!(
+            "{}: cannot put the earlier file back ({e}); it is kept as {}",
+            path.display(),
+            kept.display()
+        );
+    }
+}
+
+/// A file already under `s`'s final name, linked to a second temporary name (that of
+/// `NAME.old`, so a killed run's is swept as stale) so that it can be put back.
+fn keep_replaced(s: &Staged) -> Result<Option<PathBuf>> {
+    if s.path.symlink_metadata().is_err() {
+        return Ok(None);
+    }
+    let mut name = s.path.file_name().unwrap_or_default().to_os_string();
+    name.push(".old");
+    let old = temp_path(&s.path.with_file_name(name))?;
+    remove_any(&old);
+    // A file system without hard links (FAT on a card) moves it aside instead.
+    fs::hard_link(&s.path, &old)
+        .or_else(|_| fs::rename(&s.path, &old))
+        .map_err(|error| FileError::Write {
+            path: shown(&s.path),
+            error,
+        })?;
+    Ok(Some(old))
 }
 
 impl Drop for Outputs {
     fn drop(&mut self) {
+        let mut live = live();
         for s in &self.staged {
             let _ = fs::remove_file(&s.tmp);
+            live.forget(&s.tmp);
         }
+    }
+}
+
+/// A folder written whole under a temporary name beside its final one and renamed into place
+/// at the end (a recorded bundle), or removed with everything in it if the work fails or the
+/// command is interrupted.
+pub struct StagedDir {
+    path: PathBuf,
+    tmp: PathBuf,
+}
+
+impl StagedDir {
+    /// Claims `path`, which must not exist or be an empty folder, and creates its temporary
+    /// folder.
+    pub fn create(path: &Path) -> Result<StagedDir> {
+        let dir = dir_of(path);
+        if !dir.is_dir() {
+            return Err(FileError::NoDirectory {
+                path: shown(path),
+                dir: shown(&dir),
+            });
+        }
+        sweep_stale(&dir);
+        let tmp = temp_path(path)?;
+        let mut live = live();
+        remove_any(&tmp);
+        fs::create_dir(&tmp).map_err(|error| FileError::Write {
+            path: shown(path),
+            error,
+        })?;
+        if let Err(e) = live.add(&tmp) {
+            let _ = fs::remove_dir(&tmp);
+            return Err(e);
+        }
+        Ok(StagedDir {
+            path: path.to_path_buf(),
+            tmp,
+        })
+    }
+
+    /// Where the contents are written until [`StagedDir::commit`].
+    pub fn writing_dir(&self) -> &Path {
+        &self.tmp
+    }
+
+    /// Renames the folder into place (over an empty folder of that name, if there is one).
+    pub fn commit(self) -> Result<()> {
+        let mut live = live();
+        let done = fs::rename(&self.tmp, &self.path);
+        if done.is_ok() {
+            live.forget(&self.tmp);
+        }
+        drop(live);
+        done.map_err(|error| FileError::Write {
+            path: shown(&self.path),
+            error,
+        })
+        // On failure, dropping `self` removes the temporary folder.
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        let mut live = live();
+        remove_any(&self.tmp);
+        live.forget(&self.tmp);
     }
 }
 
@@ -261,18 +380,5 @@ mod tests {
             .to_string();
         assert!(e.contains("same file"), "{e}");
         assert_eq!(names(d.path()), ["hard.png", "in.png"]);
-    }
-
-    #[test]
-    fn temporary_names_fit_in_255_bytes() {
-        // 251 bytes, and byte 200 falls inside an "é".
-        let long = Path::new("/tmp").join(format!("x{}", "é".repeat(125)));
-        let tmp = temp_path(&long).unwrap();
-        assert!(tmp.file_name().unwrap().len() <= 255);
-        let tmp = tmp.to_str().expect("cut between characters");
-        assert!(
-            tmp.starts_with("/tmp/.xé") && tmp.ends_with(".tmp"),
-            "{tmp}"
-        );
     }
 }

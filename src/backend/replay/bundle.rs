@@ -4,7 +4,7 @@
 //! come from another machine.
 
 use crate::capture::{ImuSample, Nanos, Sensor};
-use crate::files::outputs::write_atomic;
+use crate::files::outputs::{write_atomic, StagedDir};
 use crate::files::FileError;
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -304,27 +304,51 @@ pub fn parse_imu(mut r: impl BufRead) -> Result<Vec<ImuSample>, String> {
 }
 
 /// Writes a bundle: images first, then `imu.csv`, then `bundle.toml` last, each to a temporary
-/// file renamed into place, so a bundle with a manifest is complete.
+/// file renamed into place, so a bundle with a manifest is complete. A new bundle
+/// ([`BundleWriter::create_new`]) is written in a temporary folder renamed into place at the
+/// end, so it appears whole or not at all.
 pub struct BundleWriter {
     dir: PathBuf,
+    staged: Option<StagedDir>,
     manifest: Manifest,
 }
 
 impl BundleWriter {
+    /// Writes into `dir` (created if missing), beside what is there: the frames `add_existing`
+    /// names.
     pub fn create(dir: &Path, lens_range: (i32, i32)) -> Result<BundleWriter, BundleWriteError> {
         std::fs::create_dir_all(dir).map_err(|error| BundleWriteError::CreateDir {
             dir: dir.display().to_string(),
             error,
         })?;
-        Ok(BundleWriter {
-            dir: dir.to_path_buf(),
+        Ok(Self::writing_to(dir.to_path_buf(), None, lens_range))
+    }
+
+    /// Writes a new bundle `dir` (it must not exist, or be an empty folder) through a
+    /// temporary folder beside it.
+    pub fn create_new(
+        dir: &Path,
+        lens_range: (i32, i32),
+    ) -> Result<BundleWriter, BundleWriteError> {
+        let staged = StagedDir::create(dir)?;
+        Ok(Self::writing_to(
+            staged.writing_dir().to_path_buf(),
+            Some(staged),
+            lens_range,
+        ))
+    }
+
+    fn writing_to(dir: PathBuf, staged: Option<StagedDir>, lens_range: (i32, i32)) -> Self {
+        BundleWriter {
+            dir,
+            staged,
             manifest: Manifest {
                 format: FORMAT,
                 lens_min: lens_range.0,
                 lens_max: lens_range.1,
                 takes: Vec::new(),
             },
-        })
+        }
     }
 
     /// Adds a take whose encoded image is `bytes`, named after its plane and take.
@@ -391,10 +415,11 @@ impl BundleWriter {
         write_atomic(&self.dir.join("imu.csv"), csv.as_bytes())?;
         let toml = toml::to_string(&self.manifest).map_err(BundleWriteError::Manifest)?;
         let text = format!("# focusd replay bundle: see sim-data/README.md\n{toml}");
-        Ok(write_atomic(
-            &self.dir.join("bundle.toml"),
-            text.as_bytes(),
-        )?)
+        write_atomic(&self.dir.join("bundle.toml"), text.as_bytes())?;
+        if let Some(staged) = self.staged {
+            staged.commit()?;
+        }
+        Ok(())
     }
 }
 
