@@ -13,7 +13,7 @@ use common::stacks::bundle_dir;
 use common::system::is_root;
 use futures_util::StreamExt;
 use std::path::Path;
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// One capture on `d`: its path, or its error.
@@ -371,4 +371,41 @@ fn a_dead_bus_ends_the_service_with_an_error() {
     let status = d.wait_exit(Duration::from_secs(10));
     assert_eq!(status.code(), Some(1), "{}", d.log());
     assert!(d.log().contains("bus closed"), "{}", d.log());
+}
+
+/// `trigger --wait` ends with an error as soon as the service that runs its job dies or the
+/// bus closes, instead of waiting out its timeout.
+#[test]
+fn trigger_wait_ends_when_the_service_or_the_bus_dies() {
+    for kill_bus in [false, true] {
+        let mut bus = Bus::start();
+        let d = Daemon::start(&bus, &bundle_dir("shaken"), true);
+        let trigger = Command::new(env!("CARGO_BIN_EXE_focusd"))
+            .args([
+                "trigger",
+                "--wait",
+                "--timeout",
+                "600",
+                "--address",
+                &bus.address,
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        d.wait_for_log("capture requested");
+        std::thread::sleep(Duration::from_millis(200));
+        if kill_bus {
+            bus.child.kill().unwrap();
+        } else {
+            d.signal("-KILL");
+        }
+        let o = trigger.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{err}");
+        assert!(
+            err.contains("is gone before job"),
+            "bus killed {kill_bus}: {err}"
+        );
+    }
 }

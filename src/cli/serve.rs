@@ -139,11 +139,23 @@ async fn trigger_async(a: &TriggerArgs) -> Result<()> {
         println!("{job}");
         return Ok(());
     }
+    // The instance that took the job: a service started anew under the name has not got it.
+    let owner = zbus::fdo::DBusProxy::new(&conn)
+        .await?
+        .get_name_owner(BUS_NAME.try_into()?)
+        .await
+        .with_context(|| format!("{BUS_NAME} is gone before job {job} ended"))?;
+    let peer = zbus::fdo::PeerProxy::builder(&conn)
+        .destination(owner.into_inner())
+        .path(OBJECT_PATH)
+        .build()
+        .await?;
     // A person at a terminal sees a bar; a script's log gets one line per stage.
     let bar = std::io::stderr().is_terminal().then(Bar::stderr);
     let result = wait_for(
         a,
         &job,
+        &peer,
         &mut progress,
         &mut finished,
         &mut failed,
@@ -157,10 +169,18 @@ async fn trigger_async(a: &TriggerArgs) -> Result<()> {
     Ok(())
 }
 
-/// Follows job `job` until it ends: the image's path, or why it failed.
+/// How often `trigger --wait` checks that the service is still there: a service that died or
+/// a bus that closed ends the wait within about this (the bus answers for a dead service).
+const ALIVE_EVERY: Duration = Duration::from_secs(1);
+/// How long a live service may take to answer that check: a hung one ends the wait.
+const ALIVE_ANSWER: Duration = Duration::from_secs(10);
+
+/// Follows job `job` until it ends: the image's path, or why it failed. `peer` is the service
+/// instance that runs it, pinged every [`ALIVE_EVERY`].
 async fn wait_for(
     a: &TriggerArgs,
     job: &str,
+    peer: &zbus::fdo::PeerProxy<'_>,
     progress: &mut ProgressStream,
     finished: &mut FinishedStream,
     failed: &mut FailedStream,
@@ -169,8 +189,20 @@ async fn wait_for(
     let deadline = tokio::time::sleep(Duration::from_secs(a.timeout));
     tokio::pin!(deadline);
     let mut last_stage = String::new();
+    let mut alive = tokio::time::interval(ALIVE_EVERY);
     loop {
         tokio::select! {
+            _ = alive.tick() => {
+                match tokio::time::timeout(ALIVE_ANSWER, peer.ping()).await {
+                    Ok(Ok(())) => {}
+                    Ok(Err(e)) => bail!(
+                        "{BUS_NAME} is gone before job {job} ended ({e}); see the service's log"
+                    ),
+                    Err(_) => bail!(
+                        "{BUS_NAME} stopped answering before job {job} ended; see the service's log"
+                    ),
+                }
+            }
             Some(s) = progress.next() => {
                 let args = s.args()?;
                 if args.job != job {
