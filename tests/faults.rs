@@ -409,3 +409,78 @@ fn trigger_wait_ends_when_the_service_or_the_bus_dies() {
         );
     }
 }
+
+/// The service's peak resident memory so far, kB.
+fn peak_rss_kb(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmHWM:")).unwrap();
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+/// `calls` Cancel calls sent on one connection without waiting for a single answer.
+async fn pipelined_cancels(address: &str, calls: usize) {
+    let addr: zbus::Address = address.parse().unwrap();
+    let conn = zbus::connection::Builder::address(addr)
+        .build()
+        .await
+        .unwrap();
+    for _ in 0..calls {
+        let msg = zbus::Message::method_call("/org/focusd/Focusd", "Cancel")
+            .destination("org.focusd.Focusd")
+            .interface("org.focusd.Focusd1")
+            .build(&("no-such-job",))
+            .unwrap();
+        if conn.send(&msg).await.is_err() {
+            break;
+        }
+    }
+    // Still connected while the service works through them.
+    tokio::time::sleep(Duration::from_secs(2)).await;
+}
+
+/// Clients that pipeline thousands of calls without reading an answer do not grow the service
+/// (it handles one call at a time, so what waits, waits in the bus under the bus's limits; each
+/// caller's uid is asked of the bus once), and another client's capture and property reads go
+/// through meanwhile. How long they wait is the bus's: here dbus-daemon is the busy one.
+#[test]
+fn a_flood_of_pipelined_calls_does_not_grow_the_service_or_block_another_client() {
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &bundle_dir("shaken"), false);
+    let rt = runtime();
+    let (_conn, proxy) = rt.block_on(connect(&bus));
+    // What a capture alone takes, as the baseline.
+    rt.block_on(capture_and_wait(&proxy)).expect("the capture");
+    let alone = peak_rss_kb(d.child.id());
+    let flooders: Vec<_> = (0..4)
+        .map(|_| {
+            let address = bus.address.clone();
+            std::thread::spawn(move || runtime().block_on(pipelined_cancels(&address, 8_000)))
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(300));
+    rt.block_on(async {
+        let t = Instant::now();
+        let path = capture_and_wait(&proxy).await.expect("the capture");
+        eprintln!("a capture during the flood took {:?}", t.elapsed());
+        assert!(Path::new(&path).is_file());
+        let state = tokio::time::timeout(Duration::from_secs(120), proxy.state())
+            .await
+            .expect("State answered");
+        assert_eq!(state.unwrap(), "idle");
+    });
+    for f in flooders {
+        f.join().unwrap();
+    }
+    let peak = peak_rss_kb(d.child.id());
+    eprintln!("peak resident memory of the service: {alone} kB alone, {peak} kB with the flood");
+    assert!(
+        peak < alone + 30 * 1024,
+        "the service grew from {alone} to {peak} kB"
+    );
+    // The service still serves.
+    let o = busctl(&bus, &["Cancel", "s", "another"]);
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("not running"),
+        "{o:?}"
+    );
+}

@@ -2,6 +2,7 @@
 //! callers get.
 
 use super::access::{cancel, start, Owner};
+use super::callers::Callers;
 use super::state::Shared;
 use std::sync::Arc;
 use zbus::message::Header;
@@ -28,12 +29,16 @@ pub enum FocusdError {
 
 pub struct Focusd {
     pub(super) shared: Arc<Shared>,
+    pub(super) callers: Callers,
 }
 
 /// `proxy` also generates the client side, `Focusd1Proxy` and its signal streams, from these
-/// declarations.
+/// declarations. Calls are handled one at a time (`spawn = false`: every method returns at
+/// once), so a client that pipelines calls without reading the answers makes them wait in the
+/// bus, under its limits, instead of growing the service with a task per call.
 #[interface(
     name = "org.focusd.Focusd1",
+    spawn = false,
     proxy(
         default_service = "org.focusd.Focusd",
         default_path = "/org/focusd/Focusd",
@@ -43,11 +48,7 @@ pub struct Focusd {
 impl Focusd {
     /// Starts a capture (sweep, register, fuse) and returns its job id at once; the result
     /// comes as `Finished` or `Failed`.
-    async fn capture(
-        &self,
-        #[zbus(header)] header: Header<'_>,
-        #[zbus(connection)] conn: &zbus::Connection,
-    ) -> Result<String, FocusdError> {
+    async fn capture(&self, #[zbus(header)] header: Header<'_>) -> Result<String, FocusdError> {
         // zbus passes a method without arguments whatever body came with the call.
         let got = header.signature().to_string();
         if !got.is_empty() {
@@ -55,7 +56,7 @@ impl Focusd {
                 "Capture takes no arguments, got signature {got:?}"
             )));
         }
-        let owner = caller_uid(&header, conn).await?;
+        let owner = self.callers.uid(&header).await?;
         start(&self.shared, Owner::Caller(owner))
     }
 
@@ -65,9 +66,8 @@ impl Focusd {
         &self,
         job: &str,
         #[zbus(header)] header: Header<'_>,
-        #[zbus(connection)] conn: &zbus::Connection,
     ) -> Result<(), FocusdError> {
-        let caller = caller_uid(&header, conn).await?;
+        let caller = self.callers.uid(&header).await?;
         cancel(&self.shared, job, caller)
     }
 
@@ -111,20 +111,4 @@ impl Focusd {
         job: &str,
         error: &str,
     ) -> zbus::Result<()>;
-}
-
-/// The uid of a method call's sender, from the bus.
-pub(super) async fn caller_uid(
-    header: &Header<'_>,
-    conn: &zbus::Connection,
-) -> Result<u32, FocusdError> {
-    let sender = header
-        .sender()
-        .ok_or_else(|| FocusdError::AccessDenied("the call names no sender".into()))?;
-    let dbus = zbus::fdo::DBusProxy::new(conn).await?;
-    let uid = dbus
-        .get_connection_unix_user(sender.clone().into())
-        .await
-        .map_err(|e| FocusdError::AccessDenied(format!("cannot tell who {sender} is: {e}")))?;
-    Ok(uid)
 }

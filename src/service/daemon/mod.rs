@@ -16,11 +16,13 @@
 //! camera), so systemd restarts it clean.
 //!
 //! The rooms: `interface` (the D-Bus methods, properties and signals), `access` (who may start
-//! and cancel a job, by call or by key), `state` (what the service and its worker share),
-//! `worker` (the job thread and its reporter), `relay` (worker events to signals) and `startup`
-//! (the config, the bus name and the main loop).
+//! and cancel a job, by call or by key), `callers` (each caller's uid, asked of the bus once),
+//! `state` (what the service and its worker share), `worker` (the job thread and its
+//! reporter), `relay` (worker events to signals) and `startup` (the config, the bus name and
+//! the main loop).
 
 mod access;
+mod callers;
 pub(super) mod interface;
 mod relay;
 mod startup;

@@ -2,6 +2,7 @@
 //! worker, relay and key threads, and what signals and the watchdog do until the service ends.
 
 use super::access::{on_gesture, watch_keys};
+use super::callers::Callers;
 use super::interface::Focusd;
 use super::relay::relay;
 use super::state::{give_up_if_stalled, stop, Shared, State};
@@ -86,8 +87,18 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
         source,
         beat: Heartbeat::default(),
     });
+    let connect = |builder: zbus::connection::Builder<'static>| async {
+        builder
+            .build()
+            .await
+            .map_err(|error| ServiceError::Connect {
+                bus: opts.bus.clone(),
+                error,
+            })
+    };
     let service = Focusd {
         shared: shared.clone(),
+        callers: Callers::new(connect(opts.bus.builder()?).await?),
     };
     let conn = opts
         .bus
