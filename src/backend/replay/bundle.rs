@@ -183,6 +183,19 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
             ));
         }
     }
+    // One camera exposes one frame at a time.
+    let mut by_time: Vec<(usize, &TakeEntry)> = m.takes.iter().enumerate().collect();
+    by_time.sort_by_key(|(_, t)| t.exposure_start_ns);
+    for w in by_time.windows(2) {
+        let ((i, a), (j, b)) = (w[0], w[1]);
+        if b.exposure_start_ns < a.exposure_end_ns {
+            return Err(format!(
+                "takes {i} ({}) and {j} ({}) overlap in time: take {j} starts at {} ns, before \
+                 take {i} ends at {} ns",
+                a.image, b.image, b.exposure_start_ns, a.exposure_end_ns
+            ));
+        }
+    }
     let planes = m.takes.iter().map(|t| t.plane + 1).max().unwrap_or(0);
     if let Some(p) = (0..planes).find(|&p| !m.takes.iter().any(|t| t.plane == p)) {
         return Err(format!(
@@ -299,6 +312,15 @@ pub fn parse_imu(mut r: impl BufRead) -> Result<Vec<ImuSample>, String> {
     }
     if out.is_empty() {
         return Err("no samples".into());
+    }
+    // The motion gate reads both sensors; without one, the still wait would never end.
+    for (sensor, name) in [(Sensor::Gyro, "gyro"), (Sensor::Accel, "accel")] {
+        if !out.iter().any(|s| s.sensor == sensor) {
+            return Err(format!(
+                "no {name} samples: the motion gate reads the gyroscope and the accelerometer, \
+                 so a trace needs both"
+            ));
+        }
     }
     Ok(out)
 }
@@ -459,11 +481,19 @@ exposure_end_ns = 400
         assert!(bad("plane = 1", "plane = 2").contains("plane 1 has no take"));
         assert!(bad("lens_max = 1023", "lens_max = 1023\ncolour = 3").contains("colour"));
         assert!(bad("plane = 0", "plane = -1").contains("plane"));
+        let e = bad("exposure_start_ns = 300", "exposure_start_ns = 150");
+        assert!(
+            e.contains("takes 0 (a.jpg) and 1 (b.jpg) overlap in time"),
+            "{e}"
+        );
     }
 
     #[test]
     fn imu_csv_is_checked_line_by_line() {
         let ok = "t_ns,sensor,x,y,z\n1,gyro,0.1,0,0\n1,accel,0,9.8,0\n5,gyro,0,0,0\n";
+        assert!(parse_imu("t_ns,sensor,x,y,z\n1,gyro,0.1,0,0\n".as_bytes())
+            .unwrap_err()
+            .contains("no accel samples"));
         let s = parse_imu(ok.as_bytes()).unwrap();
         assert_eq!(s.len(), 3);
         assert_eq!(s[1].sensor, Sensor::Accel);
@@ -496,24 +526,40 @@ exposure_end_ns = 400
     }
 
     #[test]
-    fn a_written_bundle_reads_back() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut w = BundleWriter::create(dir.path(), (0, 1023)).unwrap();
+    fn a_written_bundle_reads_back_and_a_new_one_appears_whole_or_not_at_all() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("b");
+        // Dropped before its manifest (a failure mid-way): nothing is left.
+        let mut w = BundleWriter::create_new(&dir, (0, 1023)).unwrap();
+        w.add_take(0, 1023, (10, 20), "jpg", b"x").unwrap();
+        drop(w);
+        assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 0);
+        let mut w = BundleWriter::create_new(&dir, (0, 1023)).unwrap();
         w.add_take(0, 1023, (10, 20), "jpg", b"x").unwrap();
         w.add_take(0, 1023, (30, 40), "jpg", b"y").unwrap();
         w.add_take(1, 0, (50, 60), "jpg", b"z").unwrap();
-        let imu = [ImuSample {
-            t: 5,
-            sensor: Sensor::Gyro,
-            v: [0.5, -1.25, 3.0],
-        }];
+        assert!(!dir.exists());
+        let imu = [
+            ImuSample {
+                t: 5,
+                sensor: Sensor::Gyro,
+                v: [0.5, -1.25, 3.0],
+            },
+            ImuSample {
+                t: 5,
+                sensor: Sensor::Accel,
+                v: [0.0, 9.8, 0.0],
+            },
+        ];
         w.finish(&imu).unwrap();
-        let b = Bundle::open(dir.path()).unwrap();
+        let names: Vec<_> = std::fs::read_dir(root.path()).unwrap().flatten().collect();
+        assert_eq!(names.len(), 1);
+        let b = Bundle::open(&dir).unwrap();
         assert_eq!(b.planes(), 2);
         assert_eq!(b.lens_positions(), vec![1023, 0]);
         assert_eq!(b.manifest.takes[1].image, "plane00_take1.jpg");
         assert_eq!(b.imu, imu.to_vec());
-        assert!(dir.path().join("plane01_take0.jpg").exists());
+        assert!(dir.join("plane01_take0.jpg").exists());
     }
 
     proptest::proptest! {

@@ -133,6 +133,16 @@ impl Camera for ReplayCamera {
             .map_err(|e| bundle_error(e.to_string()))?;
         let image = crate::files::imageio::load_rgb8(&path)
             .map_err(|e| bundle_error(crate::base::clip::chain(&e)))?;
+        let now = self.clock.now();
+        if entry.exposure_start_ns < now {
+            tracing::warn!(
+                "take {k} of plane {plane} ({}) was exposed from {} ns, before the replay's \
+                 clock ({now} ns: the still wait, the lens settling or an earlier take); its \
+                 motion is read from the trace as recorded",
+                entry.image,
+                entry.exposure_start_ns
+            );
+        }
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
             image,
