@@ -18,7 +18,7 @@
 use focusd::backend::iio::{IioConfig, IioImu, Mode};
 use focusd::backend::sys::{monotonic_now, MonotonicClock};
 use focusd::backend::v4l2::pipeline;
-use focusd::backend::v4l2::profile::{LinkSpec, PadRef, PadSpec, Profile};
+use focusd::backend::v4l2::profile::{LinkSpec, Names, PadRef, PadSpec, Profile};
 use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
 use focusd::backend::videodev::abi::{CID_FOCUS_ABSOLUTE, MEDIA_LNK_FL_ENABLED};
 use focusd::backend::videodev::media::{self, Topology};
@@ -48,13 +48,11 @@ fn run() -> Check {
     let rgb = streams("RGB through debayer and scaler", shipped()?, (640, 480))?;
     let mut raw = shipped()?;
     raw.capture = "Raw Capture 0".into();
-    raw.format.fourcc = "RGGB".into();
-    streams("raw Bayer (RGGB)", raw, (640, 480))?;
+    raw.format.fourcc = "BAYER8".into();
+    streams("raw Bayer (the sensor's order)", raw, (640, 480))?;
     let mut scaled = shipped()?;
-    scaled.pads.last_mut().expect("pads").width = 320;
-    scaled.pads.last_mut().expect("pads").height = 240;
-    scaled.format.width = 320;
-    scaled.format.height = 240;
+    scaled.pads.last_mut().expect("pads").width = Some(320);
+    scaled.pads.last_mut().expect("pads").height = Some(240);
     streams("RGB scaled to 320x240", scaled, (320, 240))?;
     lens_sweep(&rgb)
 }
@@ -171,18 +169,18 @@ fn mismatches() -> Check {
     let mut p = shipped()?;
     p.pads.push(PadSpec {
         pad: PadRef("Scaler".into(), 1),
-        code: "SRGGB8_1X8".into(),
-        width: 640,
-        height: 480,
+        code: "YUYV8_2X8".into(),
+        width: None,
+        height: None,
         crop: None,
     });
     expect_error(
         &p,
         "wrong-code",
-        "pad \"Scaler\":1: asked for SRGGB8_1X8/640x480, the driver set RGB888_1X24/640x480",
+        "pad \"Scaler\":1: asked for YUYV8_2X8/640x480, the driver set RGB888_1X24/640x480",
     )?;
     let mut p = shipped()?;
-    p.sensor = "imx258".into();
+    p.sensor = Names::One("imx258".into());
     expect_error(
         &p,
         "other-sensor",

@@ -84,7 +84,6 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
     let cfg = match profile_of(cfg)? {
         None => cfg,
         Some((profile, chosen_by)) => {
-            developer = Developer::new(profile.black_level, profile.colour_matrix);
             let p =
                 pipeline::apply(&profile, &cfg.sysfs_root).map_err(|e| match (e, chosen_by) {
                     (CaptureError::Device { device, reason }, Some(why)) => CaptureError::Device {
@@ -96,11 +95,19 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
                     },
                     (e, _) => e,
                 })?;
+            for note in &p.notes {
+                tracing::info!("device profile {}: {note}", profile.name);
+            }
+            let black = p
+                .format
+                .raw_bits()
+                .map_or(0, |bits| profile.black_level_at(bits));
+            developer = Developer::new(black, profile.colour_matrix);
             profiled = V4l2Config {
                 device: Some(p.capture),
-                format: Some(profile.format.fourcc),
-                width: profile.format.width,
-                height: profile.format.height,
+                format: Some(fourcc_str(&p.format.fourcc())),
+                width: p.width,
+                height: p.height,
                 lens: cfg
                     .lens
                     .clone()

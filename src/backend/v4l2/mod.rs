@@ -12,8 +12,12 @@ pub mod detect;
 pub mod exposure;
 pub mod format;
 pub mod lens;
+pub mod media_ops;
 pub mod pipeline;
 pub mod profile;
+pub mod sensor;
 
 pub use camera::{open, V4l2Camera};
 pub use config::V4l2Config;
+#[cfg(test)]
+mod fixtures;
