@@ -9,6 +9,7 @@ pub mod record;
 pub mod sweep;
 pub mod trigger;
 
+use crate::develop::RawFrame;
 use crate::stack::image::Image;
 use serde::{Deserialize, Serialize};
 
@@ -54,9 +55,35 @@ pub trait Clock: Send {
 /// One captured frame and when it was exposed.
 #[derive(Clone, Debug)]
 pub struct Take {
-    pub image: Image<u8>,
+    pub frame: Frame,
     pub exposure_start: Nanos,
     pub exposure_end: Nanos,
+}
+
+/// A take's pixels: a picture, or a raw mosaic kept as it came, developed once the sweep is
+/// done so that the lens never waits for a demosaic.
+#[derive(Clone, Debug)]
+pub enum Frame {
+    Picture(Image<u8>),
+    Raw(RawFrame),
+}
+
+/// Pictures from a sweep's frames, in order: raw ones developed by `develop` (one call each,
+/// each mosaic freed as soon as it is developed), pictures as they are.
+pub fn develop(
+    frames: Vec<Frame>,
+    develop: &mut dyn FnMut(&RawFrame) -> Result<Image<u8>, String>,
+) -> Result<Vec<Image<u8>>, CaptureError> {
+    frames
+        .into_iter()
+        .enumerate()
+        .map(|(i, f)| match f {
+            Frame::Picture(img) => Ok(img),
+            Frame::Raw(raw) => {
+                develop(&raw).map_err(|e| CaptureError::device(format!("raw frame {i}"), e))
+            }
+        })
+        .collect()
 }
 
 /// A camera with a lens that can be moved to an absolute position.

@@ -11,7 +11,7 @@ use crate::backend::replay::{self, Bundle};
 use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
-use crate::capture::{Camera, Clock, Imu, Take};
+use crate::capture::{Camera, Clock, Imu};
 use crate::files::outputs::Outputs;
 use crate::stack::fuse::{fuse, FuseError};
 use crate::stack::memory::{mib, Plan};
@@ -175,8 +175,7 @@ pub fn run(
     )?;
     let capture_ms = t0.elapsed().as_secs_f64() * 1e3;
     let params = fuse_cfg.params(frames.len());
-    let images = frames.into_iter().map(|t: Take| t.image).collect();
-    let fused = fuse(images, &params, progress)?;
+    let fused = fuse(frames, &params, progress)?;
     if !fused.memory.fits() {
         tracing::warn!("{}; raise [fuse] memory_mb", fused.memory);
     }

@@ -24,7 +24,8 @@ use focusd::backend::videodev::abi::{CID_FOCUS_ABSOLUTE, MEDIA_LNK_FL_ENABLED};
 use focusd::backend::videodev::media::{self, Topology};
 use focusd::backend::videodev::Device;
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
-use focusd::capture::{Camera, CaptureError, Imu, Sensor, Take};
+use focusd::capture::{Camera, CaptureError, Frame, Imu, Sensor, Take};
+use focusd::develop::StackDeveloper;
 use focusd::stack::Image;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -91,6 +92,14 @@ fn cfg(profile: Option<String>) -> V4l2Config {
 
 fn capture(cam: &mut V4l2Camera) -> Result<Take, String> {
     cam.capture().map_err(|e| format!("capture: {e}"))
+}
+
+/// A take's picture: raw takes developed as after a sweep.
+fn picture(t: Take, stack: &mut StackDeveloper) -> Result<Image<u8>, String> {
+    match t.frame {
+        Frame::Picture(img) => Ok(img),
+        Frame::Raw(raw) => stack.develop(&raw),
+    }
 }
 
 fn luma_spread(img: &Image<u8>) -> f64 {
@@ -207,13 +216,13 @@ fn detected() -> Check {
         choice.reason
     );
     let mut cam = v4l2::open(&cfg(None)).map_err(|e| format!("open, profile chosen: {e}"))?;
-    let take = capture(&mut cam)?;
+    let take = picture(capture(&mut cam)?, &mut StackDeveloper::default())?;
     cam.release().map_err(|e| format!("release: {e}"))?;
     ensure!(
-        (take.image.width(), take.image.height()) == (640, 480),
+        (take.width(), take.height()) == (640, 480),
         "the chosen profile captured {}x{}",
-        take.image.width(),
-        take.image.height()
+        take.width(),
+        take.height()
     );
     ok(format!(
         "no profile configured: {} chosen by {}, streams 640x480",
@@ -296,15 +305,17 @@ fn streams(what: &str, profile: Profile, size: (usize, usize)) -> Result<String,
     let mut cam = v4l2::open(&cfg(Some(path.clone()))).map_err(|e| format!("{what}: open: {e}"))?;
     let d = cam.describe();
     let mut spreads = Vec::new();
+    let mut stack = StackDeveloper::default();
     for _ in 0..3 {
         let t = capture(&mut cam).map_err(|e| format!("{what}: {e}"))?;
+        let t = picture(t, &mut stack).map_err(|e| format!("{what}: {e}"))?;
         ensure!(
-            (t.image.width(), t.image.height()) == size,
+            (t.width(), t.height()) == size,
             "{what}: frame {}x{}, expected {size:?}",
-            t.image.width(),
-            t.image.height()
+            t.width(),
+            t.height()
         );
-        spreads.push(luma_spread(&t.image));
+        spreads.push(luma_spread(&t));
     }
     cam.release().map_err(|e| format!("{what}: release: {e}"))?;
     ensure!(
@@ -457,12 +468,11 @@ fn lens_sweep(profile: &str) -> Check {
         distinct == planes,
         "lens moves {moves:?} are not the planes {planes:?}"
     );
-    for f in &s.frames {
+    for t in s.planes.iter().flat_map(|p| &p.takes) {
+        let (start, end) = (t.exposure_start_ns, t.exposure_end_ns);
         ensure!(
-            f.exposure_start < f.exposure_end && f.exposure_end <= monotonic_now(),
-            "frame window [{}, {}] is not in the past of CLOCK_MONOTONIC",
-            f.exposure_start,
-            f.exposure_end
+            start < end && end <= monotonic_now(),
+            "frame window [{start}, {end}] is not in the past of CLOCK_MONOTONIC"
         );
     }
     let after = rb

@@ -7,7 +7,7 @@
 pub mod bundle;
 pub mod faults;
 
-use crate::capture::{Camera, CaptureError, Clock, Imu, ImuSample, Nanos, Take};
+use crate::capture::{Camera, CaptureError, Clock, Frame, Imu, ImuSample, Nanos, Take};
 pub use bundle::{Bundle, BundleError, BundleWriteError, BundleWriter};
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
@@ -135,7 +135,7 @@ impl Camera for ReplayCamera {
             .map_err(|e| bundle_error(crate::base::clip::chain(&e)))?;
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
-            image,
+            frame: Frame::Picture(image),
             exposure_start: entry.exposure_start_ns,
             exposure_end: entry.exposure_end_ns,
         })

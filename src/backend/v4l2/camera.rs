@@ -20,8 +20,8 @@ use crate::backend::videodev::abi::{
     CID_FOCUS_AUTO,
 };
 use crate::backend::videodev::{BufType, Device, PlaneLayout, Stream};
-use crate::capture::{Camera, CaptureError, Nanos, Take};
-use crate::develop::{Developer, IDENTITY};
+use crate::capture::{Camera, CaptureError, Frame, Nanos, Take};
+use crate::develop::{Developer, RawFrame, RawLayout, IDENTITY};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -49,8 +49,8 @@ pub struct V4l2Camera {
     settled_at: Option<Nanos>,
     /// The previous frame's timestamp, for the frame interval when the driver gives none.
     last_stamp: Option<Nanos>,
-    /// Develops raw Bayer frames; its white balance, measured on the first, holds for the
-    /// whole stack.
+    /// Converts frames an ISP made; for raw Bayer frames, the black level and colour matrix
+    /// they carry to their development after the sweep.
     developer: Developer,
 }
 
@@ -294,10 +294,9 @@ impl Camera for V4l2Camera {
             let outcome = match window {
                 Err(e) => Some(Err(CaptureError::device(&label, e))),
                 Ok(Some((start, end))) if !corrupt && !stale(start, self.settled_at) => Some(
-                    format::to_rgb_planes(
+                    frame_of(
                         self.format,
-                        self.width as usize,
-                        self.height as usize,
+                        (self.width as usize, self.height as usize),
                         &stream
                             .planes(&d)
                             .into_iter()
@@ -306,8 +305,8 @@ impl Camera for V4l2Camera {
                             .collect::<Vec<_>>(),
                         &mut self.developer,
                     )
-                    .map(|image| Take {
-                        image,
+                    .map(|frame| Take {
+                        frame,
                         exposure_start: start,
                         exposure_end: end,
                     })
@@ -591,6 +590,33 @@ fn controls_of(dev: &Device) -> io::Result<Vec<ControlInfo>> {
             default: d.default,
         })
         .collect())
+}
+
+/// A frame's pixels: a raw Bayer buffer copied as it is (developed after the sweep), any other
+/// format converted to RGB now.
+fn frame_of(
+    format: PixelFormat,
+    (width, height): (usize, usize),
+    planes: &[(&[u8], usize)],
+    developer: &mut Developer,
+) -> Result<Frame, String> {
+    match (format, planes) {
+        (PixelFormat::Bayer(order, packing), &[(bytes, stride)]) => RawFrame::copy(
+            bytes,
+            RawLayout {
+                packing,
+                width,
+                height,
+                stride,
+                order,
+                black_level: developer.black_level,
+                matrix: developer.matrix,
+            },
+        )
+        .map(Frame::Raw)
+        .map_err(|e| format!("{}: {e}", fourcc_str(&format.fourcc()))),
+        _ => format::to_rgb_planes(format, width, height, planes, developer).map(Frame::Picture),
+    }
 }
 
 fn stale(exposure_start: Nanos, settled_at: Option<Nanos>) -> bool {

@@ -493,12 +493,16 @@ fn pinephone_pro_after_6_11_follows_the_flipped_order() {
     assert_eq!((p.width, p.height), (4032, 3024));
     assert_eq!(f.format_of("imx258 1-001a", 0).code, SBGGR10);
     assert_eq!(
-        (f.format_of("rkisp1_isp", 0).code, f.format_of("rkisp1_isp", 2).code),
+        (
+            f.format_of("rkisp1_isp", 0).code,
+            f.format_of("rkisp1_isp", 2).code
+        ),
         (SBGGR10, 0x3001)
     );
     assert!(
-        p.notes.iter().any(|n| n
-            == "pad \"rkisp1_isp\":0 crops 4208x3120 to 4032x3024 at (88, 48), its limit"),
+        p.notes.iter().any(
+            |n| n == "pad \"rkisp1_isp\":0 crops 4208x3120 to 4032x3024 at (88, 48), its limit"
+        ),
         "{:?}",
         p.notes
     );
@@ -562,13 +566,7 @@ fn a_pad_that_changes_the_code_names_the_pad_and_both_formats() {
             self.0.format(pad)
         }
         fn set_format(&mut self, pad: u32, f: MbusFramefmt) -> MbusFramefmt {
-            self.0.set_format(
-                pad,
-                MbusFramefmt {
-                    code: SRGGB10,
-                    ..f
-                },
-            )
+            self.0.set_format(pad, MbusFramefmt { code: SRGGB10, ..f })
         }
     }
     let mut f = pinephone_pro(imx258_after_6_11(), rkisp1_isp_cropping(), true);

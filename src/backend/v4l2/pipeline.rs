@@ -71,8 +71,8 @@ pub fn apply_with(ops: &mut dyn MediaOps, profile: &Profile) -> Result<Pipeline,
         }
     }
     let (sensor_id, sensor_name) = sensor_entity(&topo, profile).map_err(fail)?;
-    let sensor_node = devnode(ops, &topo, sensor_id)
-        .map_err(|e| fail(format!("sensor {sensor_name:?}: {e}")))?;
+    let sensor_node =
+        devnode(ops, &topo, sensor_id).map_err(|e| fail(format!("sensor {sensor_name:?}: {e}")))?;
     let at_sensor = |e: String| fail(format!("sensor {sensor_name:?}: {e}"));
     let offered = ops
         .codes(&sensor_node, 0)
@@ -105,7 +105,10 @@ pub fn apply_with(ops: &mut dyn MediaOps, profile: &Profile) -> Result<Pipeline,
         }
     }
     if !refused.is_empty() {
-        notes.push(format!("modes the pipeline refused: {}", refused.join("; ")));
+        notes.push(format!(
+            "modes the pipeline refused: {}",
+            refused.join("; ")
+        ));
     }
     let Some([width, height]) = chosen else {
         return Err(fail(format!(
@@ -217,7 +220,9 @@ fn try_mode(
                     p.pad, size[0], size[1], again.width, again.height, again.left, again.top
                 ));
                 (again == centred).then_some(again).ok_or_else(|| {
-                    at(format!("asked to crop to {centred:?}, the driver set {again:?}"))
+                    at(format!(
+                        "asked to crop to {centred:?}, the driver set {again:?}"
+                    ))
                 })?
             }
             _ if got != asked => {

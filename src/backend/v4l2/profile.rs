@@ -280,7 +280,10 @@ impl Profile {
 
     fn check(&self) -> Result<(), String> {
         if self.sensor.all().is_empty() || self.sensor.all().iter().any(|n| n.trim().is_empty()) {
-            return Err(format!("sensor = {}: give the sensor's entity name", self.sensor));
+            return Err(format!(
+                "sensor = {}: give the sensor's entity name",
+                self.sensor
+            ));
         }
         if !super::sensor::DEPTHS.contains(&self.mode.bits) {
             return Err(format!(

@@ -553,8 +553,7 @@ pub const VIDIOC_S_PARM: Opcode = opcode::read_write::<StreamParm>(b'V', 22);
 pub const VIDIOC_G_EXT_CTRLS: Opcode = opcode::read_write::<ExtControls>(b'V', 71);
 pub const VIDIOC_S_EXT_CTRLS: Opcode = opcode::read_write::<ExtControls>(b'V', 72);
 pub const VIDIOC_QUERY_EXT_CTRL: Opcode = opcode::read_write::<QueryExtCtrl>(b'V', 103);
-pub const VIDIOC_SUBDEV_ENUM_MBUS_CODE: Opcode =
-    opcode::read_write::<SubdevMbusCodeEnum>(b'V', 2);
+pub const VIDIOC_SUBDEV_ENUM_MBUS_CODE: Opcode = opcode::read_write::<SubdevMbusCodeEnum>(b'V', 2);
 pub const VIDIOC_SUBDEV_ENUM_FRAME_SIZE: Opcode =
     opcode::read_write::<SubdevFrameSizeEnum>(b'V', 74);
 pub const VIDIOC_SUBDEV_G_FMT: Opcode = opcode::read_write::<SubdevFormat>(b'V', 4);
