@@ -98,6 +98,9 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
             for note in &p.notes {
                 tracing::info!("device profile {}: {note}", profile.name);
             }
+            let named = lens::named_lenses(&cfg.sysfs_root);
+            pipeline::check_lens(&p, cfg.lens.as_deref(), &named)
+                .map_err(|e| CaptureError::device(format!("device profile {}", profile.name), e))?;
             let black = p
                 .format
                 .raw_bits()

@@ -4,7 +4,7 @@
 //! driver or device tree it comes from.
 
 use super::media_ops::MediaOps;
-use super::pipeline::{apply_with, Pipeline};
+use super::pipeline::{apply_with, check_lens, Pipeline};
 use super::profile::Profile;
 use crate::backend::videodev::abi::{self, MbusFramefmt, Rect};
 use crate::backend::videodev::media::{Entity, Info, Interface, Link, Pad, Topology};
@@ -607,10 +607,29 @@ fn librem5_falls_back_to_2104_where_the_bridge_is_narrower() {
 }
 
 #[test]
-fn librem5_on_mainline_has_no_lens_in_the_graph() {
+fn librem5_on_mainline_has_no_lens_and_says_how_to_link_it() {
     let mut f = librem5("s5k3l6 3-002d", (8192, 8192), false);
     let p = negotiate(&mut f, "librem5").expect("negotiates");
     assert_eq!(p.lens, None);
+    let e = check_lens(&p, None, &[]).expect_err("no lens");
+    assert!(
+        e.starts_with("the media graph links no lens to the sensor \"s5k3l6 3-002d\"")
+            && e.contains("no `lens-focus` property")
+            && e.contains("add `lens-focus = <&lens>;` to the sensor's node")
+            && e.contains("dongwoon,dw9714 at i2c4 0x0c in imx8mq-librem5.dtsi")
+            && e.contains("set [camera] lens"),
+        "{e}"
+    );
+    // A configured lens, or a sub-device named after a lens driver, is used instead.
+    assert_eq!(check_lens(&p, Some("/dev/v4l-subdev7"), &[]), Ok(()));
+    assert_eq!(
+        check_lens(&p, None, &[PathBuf::from("/dev/v4l-subdev7")]),
+        Ok(())
+    );
+    // Linked (Purism's device tree), there is nothing to say.
+    let mut f = librem5("s5k3l6xx 3-002d", (8192, 8192), true);
+    let linked = negotiate(&mut f, "librem5").expect("negotiates");
+    assert_eq!(check_lens(&linked, None, &[]), Ok(()));
 }
 
 #[test]

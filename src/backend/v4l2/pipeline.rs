@@ -142,6 +142,24 @@ pub fn apply_with(ops: &mut dyn MediaOps, profile: &Profile) -> Result<Pipeline,
     })
 }
 
+/// Where the graph ties no lens to the sensor, none is configured and no sub-device is named
+/// after a lens driver, the capture cannot move a lens: the error, said before any sweep,
+/// names the missing `lens-focus` link, the device-tree fix and `[camera] lens`.
+pub fn check_lens(p: &Pipeline, configured: Option<&str>, named: &[PathBuf]) -> Result<(), String> {
+    if p.lens.is_some() || configured.is_some() || !named.is_empty() {
+        return Ok(());
+    }
+    Err(format!(
+        "the media graph links no lens to the sensor {:?}: the device tree gives the sensor no \
+         `lens-focus` property, so the kernel makes no ancillary link and no lens sub-device. \
+         Fix the device tree: add `lens-focus = <&lens>;` to the sensor's node, pointing to its \
+         lens actuator (on the Librem 5, the dongwoon,dw9714 at i2c4 0x0c in \
+         imx8mq-librem5.dtsi). On a kernel that has the lens sub-device but not the link, set \
+         [camera] lens to its node (/dev/v4l-subdevN) or name",
+        p.sensor
+    ))
+}
+
 /// Why a mode was not taken: the pipeline cannot pass its size (try the next), or the
 /// hardware does not match the profile at all.
 enum Refused {
