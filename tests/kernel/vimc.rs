@@ -28,7 +28,7 @@ use focusd::backend::videodev::abi::{
 };
 use focusd::backend::videodev::media::{self, Topology};
 use focusd::backend::videodev::subdev;
-use focusd::backend::videodev::Device;
+use focusd::backend::videodev::{BufType, Device};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Frame, Imu, Sensor, Take};
 use focusd::develop::{BayerOrder, Developer, StackDeveloper, IDENTITY};
@@ -223,6 +223,7 @@ fn detected() -> Check {
         choice.profile.name,
         choice.reason
     );
+    let order = raw_node_follows_sensor()?;
     let mut cam = v4l2::open(&cfg(None)).map_err(|e| format!("open, profile chosen: {e}"))?;
     let take = picture(capture(&mut cam)?, &mut StackDeveloper::default())?;
     cam.release().map_err(|e| format!("release: {e}"))?;
@@ -233,10 +234,29 @@ fn detected() -> Check {
         take.height()
     );
     ok(format!(
-        "no profile configured: {} chosen by {}, streams 640x480",
+        "no profile configured: {} chosen by {}, streams 640x480 (Sensor A in {order})",
         choice.profile.name, choice.reason
     ));
     Ok(())
+}
+
+/// vimc 6.1 validates every enabled link of the graph before streaming, so Raw Capture 0's
+/// format must match Sensor A's code even when capturing RGB; vimc's sensor offers every
+/// order, and from an RGB format focusd takes the first 8-bit Bayer code it lists. Sets Raw
+/// Capture 0 to that order (what another program would have had to do), and names it.
+fn raw_node_follows_sensor() -> Result<String, String> {
+    let sensor = node("Sensor A")?;
+    let s = Device::open(&sensor).map_err(|e| format!("{}: {e}", sensor.display()))?;
+    let codes = subdev::codes(&s, 0).map_err(|e| format!("Sensor A's codes: {e}"))?;
+    let current = subdev::format(&s, 0).ok().map(|f| f.code);
+    let code = v4l2::sensor::choose_code(&codes, current, 8)?;
+    let (order, bits) = v4l2::sensor::bayer_of(code).ok_or("not a Bayer code")?;
+    let fourcc = v4l2::sensor::capture_format(order, bits).fourcc();
+    let raw = node("Raw Capture 0")?;
+    Device::open(&raw)
+        .and_then(|d| d.set_format(BufType::Capture, 640, 480, fourcc))
+        .map_err(|e| format!("{}: {e}", raw.display()))?;
+    Ok(v4l2::profile::mbus_name(code))
 }
 
 /// vimc's media device and its graph.
