@@ -5,6 +5,7 @@
 //! sweep-and-reshoot logic the phone runs.
 
 pub mod gate;
+pub mod hold;
 pub mod record;
 pub mod sweep;
 pub mod trigger;
@@ -95,6 +96,11 @@ pub trait Camera: Send {
     fn focus(&mut self, plane: usize, position: i32) -> Result<(), CaptureError>;
     /// The next frame exposed entirely after the last `focus` returned.
     fn capture(&mut self) -> Result<Take, CaptureError>;
+    /// The counter-clockwise turn, in degrees, that makes the sensor's pictures upright
+    /// (`V4L2_CID_CAMERA_SENSOR_ROTATION`, a bundle's `rotation`); 0 when unknown.
+    fn sensor_rotation(&self) -> i64 {
+        0
+    }
     /// Puts the lens back where it was found and stops streaming. Called on every way out of a
     /// sweep (success, error, cancel); must be safe to call twice.
     fn release(&mut self) -> Result<(), CaptureError>;

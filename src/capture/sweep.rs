@@ -2,6 +2,7 @@
 //! reshooting every take the motion gate rejects.
 
 use super::gate::{measure, Motion, Rest, Thresholds};
+use super::hold::{Hold, HoldTracker};
 use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Stage, Take};
 use crate::base::setting::{Bounds, Invalid};
 use crate::develop::{RawFrame, StackDeveloper};
@@ -131,6 +132,8 @@ pub struct PlaneReport {
 pub struct Sweep {
     pub frames: Vec<Image<u8>>,
     pub planes: Vec<PlaneReport>,
+    /// Which way the phone was held while it was found still.
+    pub hold: Hold,
     /// When the phone was found still, and when the sweep ended.
     pub started: Nanos,
     pub ended: Nanos,
@@ -197,7 +200,7 @@ fn run(
     cfg.validate(range)
         .map_err(|e| CaptureError::device("sweep config", e.to_string()))?;
     monitor.progress(Stage::WaitingStill, 0, cfg.planes);
-    let (rest, started) = wait_still(imu, clock, cfg, monitor)?;
+    let (rest, started, hold) = wait_still(imu, clock, cfg, monitor)?;
     let mut frames = Vec::with_capacity(cfg.planes);
     let mut planes = Vec::with_capacity(cfg.planes);
     for (plane, lens) in cfg.positions(range).into_iter().enumerate() {
@@ -255,6 +258,7 @@ fn run(
     let sweep = Sweep {
         frames: Vec::new(),
         planes,
+        hold,
         started,
         ended: clock.now(),
     };
@@ -275,27 +279,30 @@ fn take_report(take: usize, t: &Take, m: &Motion) -> TakeReport {
 }
 
 /// Waits until the gyroscope has been still for `still_ms`, stepping a quarter of that at a
-/// time; returns what rest looks like then, and when.
+/// time; returns what rest looks like then, when, and the hold (each window's gravity seen).
 fn wait_still(
     imu: &mut dyn Imu,
     clock: &dyn Clock,
     cfg: &SweepConfig,
     monitor: &dyn Monitor,
-) -> Result<(Rest, Nanos), CaptureError> {
+) -> Result<(Rest, Nanos, Hold), CaptureError> {
     let span = cfg.still_ms as Nanos * 1_000_000;
     let step = (span / 4).max(1_000_000);
     let begin = clock.now();
     let mut end = begin + span;
+    let mut hold = HoldTracker::default();
     loop {
         if monitor.cancelled() {
             return Err(CaptureError::Cancelled);
         }
         clock.sleep_until(end);
         let samples = imu.samples(end - span, end)?;
-        if is_still(&samples, cfg.still_gyro_rms) {
-            if let Some(rest) = Rest::from_samples(&samples) {
-                return Ok((rest, end));
-            }
+        let rest = Rest::from_samples(&samples);
+        if let Some(r) = &rest {
+            hold.see(r.gravity);
+        }
+        if let Some(rest) = rest.filter(|_| is_still(&samples, cfg.still_gyro_rms)) {
+            return Ok((rest, end, hold.hold()));
         }
         if end - begin >= cfg.still_timeout_ms as Nanos * 1_000_000 {
             return Err(CaptureError::NotStill {

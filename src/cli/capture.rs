@@ -151,7 +151,8 @@ pub fn record(a: &RecordArgs) -> Result<()> {
         .or_else(|_| rig.imu.samples(begin, now))
         .context("reading back the IMU trace of the sweep")?;
     let mut w = BundleWriter::create(&a.output, rig.camera.lens_range())
-        .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?;
+        .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?
+        .with_rotation(rig.camera.sensor_rotation());
     // Raw takes are developed now, the sweep done, with one white balance for them all.
     let (placed, frames): (Vec<_>, Vec<_>) = takes
         .into_iter()

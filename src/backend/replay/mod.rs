@@ -92,6 +92,10 @@ impl Camera for ReplayCamera {
         (self.bundle.manifest.lens_min, self.bundle.manifest.lens_max)
     }
 
+    fn sensor_rotation(&self) -> i64 {
+        self.bundle.manifest.rotation
+    }
+
     fn focus(&mut self, plane: usize, _position: i32) -> Result<(), CaptureError> {
         if plane >= self.next.len() {
             return Err(self.bundle_error(format!(

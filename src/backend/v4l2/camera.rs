@@ -49,6 +49,8 @@ pub struct V4l2Camera {
     settled_at: Option<Nanos>,
     /// The previous frame's timestamp, for the frame interval when the driver gives none.
     last_stamp: Option<Nanos>,
+    /// The sensor's rotation control (degrees counter-clockwise), 0 without a profile.
+    rotation: i64,
     /// Converts frames an ISP made; for raw Bayer frames, the black level and colour matrix
     /// they carry to their development after the sweep.
     developer: Developer,
@@ -79,6 +81,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
     let spec = ControlSpec::parse(cfg.focus_control.as_deref())
         .map_err(|e| CaptureError::device("[camera] config", format!("focus_control {e}")))?;
     let profiled;
+    let mut rotation = 0;
     // Raw frames are developed with the profile's black level and colour matrix.
     let mut developer = Developer::new(0, IDENTITY);
     let cfg = match profile_of(cfg)? {
@@ -98,6 +101,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
             for note in &p.notes {
                 tracing::info!("device profile {}: {note}", profile.name);
             }
+            rotation = p.rotation.unwrap_or(0);
             let named = lens::named_lenses(&cfg.sysfs_root);
             pipeline::check_lens(&p, cfg.lens.as_deref(), &named)
                 .map_err(|e| CaptureError::device(format!("device profile {}", profile.name), e))?;
@@ -179,6 +183,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         settled_at: None,
         last_stamp: None,
         developer,
+        rotation,
     })
 }
 
@@ -230,6 +235,10 @@ impl V4l2Camera {
 impl Camera for V4l2Camera {
     fn lens_range(&self) -> (i32, i32) {
         self.lens.range
+    }
+
+    fn sensor_rotation(&self) -> i64 {
+        self.rotation
     }
 
     fn focus(&mut self, _plane: usize, position: i32) -> Result<(), CaptureError> {

@@ -61,6 +61,8 @@ struct Sensor {
     flips: Option<(i64, i64)>,
     modes: Vec<(u32, u32)>,
     current: (u32, u32),
+    /// V4L2_CID_CAMERA_SENSOR_ROTATION, made from the device tree's `rotation`.
+    rotation: Option<i64>,
 }
 
 impl Sensor {
@@ -92,6 +94,7 @@ impl Driver for Sensor {
         match id {
             abi::CID_HFLIP => self.flips.map(|f| f.0),
             abi::CID_VFLIP => self.flips.map(|f| f.1),
+            abi::CID_CAMERA_SENSOR_ROTATION => self.rotation,
             _ => None,
         }
     }
@@ -101,13 +104,15 @@ impl Driver for Sensor {
 /// (SRGGB10, SGRBG10, SGBRG10, SBGGR10 for no flip, hflip, vflip, both), imx258_get_format_code
 /// (index vflip << 1 | hflip), HFLIP and VFLIP made with default 1 in imx258_init_controls,
 /// supported_modes 4208x3120, 2104x1560, 1048x780, picked by v4l2_find_nearest_size in
-/// imx258_set_pad_format.
+/// imx258_set_pad_format; the rotation control from v4l2_ctrl_new_fwnode_properties and the
+/// PinePhone Pro device tree's `rotation = <270>`.
 fn imx258_after_6_11() -> Sensor {
     Sensor {
         codes: [SRGGB10, SGRBG10, 0x300e, SBGGR10],
         flips: Some((1, 1)),
         modes: vec![(4208, 3120), (2104, 1560), (1048, 780)],
         current: (4208, 3120),
+        rotation: Some(270),
     }
 }
 
@@ -129,6 +134,7 @@ fn s5k3l6xx() -> Sensor {
         flips: None,
         modes: vec![(1052, 780), (2104, 1560), (4208, 3120)],
         current: (1052, 780),
+        rotation: None,
     }
 }
 
@@ -511,6 +517,7 @@ fn pinephone_pro_after_6_11_follows_the_flipped_order() {
         "sensor \"imx258 1-001a\" reports SBGGR10_1X10 (hflip 1, vflip 1)"
     );
     assert_eq!(p.lens, Some(PathBuf::from("/dev/node5")));
+    assert_eq!(p.rotation, Some(270));
     let profile = Profile::load("pinephone-pro").expect("pro");
     assert_eq!(
         (profile.black_level_at(8), profile.black_level_at(10)),

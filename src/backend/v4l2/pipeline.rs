@@ -31,6 +31,8 @@ pub struct Pipeline {
     pub format: PixelFormat,
     pub width: u32,
     pub height: u32,
+    /// `V4L2_CID_CAMERA_SENSOR_ROTATION` on the sensor, where it has it.
+    pub rotation: Option<i64>,
     /// What was chosen and why, a line each, for the log.
     pub notes: Vec<String>,
 }
@@ -85,6 +87,13 @@ pub fn apply_with(ops: &mut dyn MediaOps, profile: &Profile) -> Result<Pipeline,
         mbus_name(code),
         flips(ops, &sensor_node)
     )];
+    let rotation = ops
+        .control(&sensor_node, abi::CID_CAMERA_SENSOR_ROTATION)
+        .ok()
+        .flatten();
+    if let Some(r) = rotation {
+        notes.push(format!("sensor rotation {r}"));
+    }
     let sizes = ops
         .sizes(&sensor_node, 0, code)
         .map_err(|e| at_sensor(format!("cannot list its frame sizes: {e}")))?;
@@ -138,6 +147,7 @@ pub fn apply_with(ops: &mut dyn MediaOps, profile: &Profile) -> Result<Pipeline,
         format,
         width,
         height,
+        rotation,
         notes,
     })
 }
