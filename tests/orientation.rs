@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::stacks::{bundle_dir, load};
+use common::stacks::{bundle_dir, exif_orientation, load};
 
 /// How a hold maps the upright phone's gravity.
 type Turn = fn([f64; 3]) -> [f64; 3];
@@ -59,16 +59,6 @@ fn capture(bundle: &Path, out: &Path) -> serde_json::Value {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     serde_json::from_slice(&std::fs::read(report).unwrap()).unwrap()
-}
-
-fn exif_orientation(jpeg: &Path) -> Option<u32> {
-    let bytes = std::fs::read(jpeg).unwrap();
-    let exif = exif::Reader::new()
-        .read_from_container(&mut std::io::Cursor::new(bytes))
-        .ok()?;
-    exif.get_field(exif::Tag::Orientation, exif::In::PRIMARY)?
-        .value
-        .get_uint(0)
 }
 
 #[test]

@@ -21,7 +21,7 @@ use crate::backend::videodev::abi::{
 };
 use crate::backend::videodev::{BufType, Device, PlaneLayout, Stream};
 use crate::capture::{Camera, CaptureError, Frame, Nanos, Take};
-use crate::develop::{Developer, RawFrame, RawLayout, IDENTITY};
+use crate::develop::{Developer, IDENTITY};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -613,20 +613,9 @@ fn frame_of(
     developer: &mut Developer,
 ) -> Result<Frame, String> {
     match (format, planes) {
-        (PixelFormat::Bayer(order, packing), &[(bytes, stride)]) => RawFrame::copy(
-            bytes,
-            RawLayout {
-                packing,
-                width,
-                height,
-                stride,
-                order,
-                black_level: developer.black_level,
-                matrix: developer.matrix,
-            },
-        )
-        .map(Frame::Raw)
-        .map_err(|e| format!("{}: {e}", fourcc_str(&format.fourcc()))),
+        (PixelFormat::Bayer(order, packing), &[plane]) => {
+            format::copy_raw((order, packing), (width, height), plane, developer).map(Frame::Raw)
+        }
         _ => format::to_rgb_planes(format, width, height, planes, developer).map(Frame::Picture),
     }
 }

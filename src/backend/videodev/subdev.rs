@@ -1,5 +1,6 @@
-//! V4L2 sub-device pads: the media-bus format and the crop of each pad, which must agree along
-//! every enabled link of a media pipeline before it streams.
+//! V4L2 sub-device pads: the codes and sizes a pad offers, and the media-bus format and the
+//! crop of each pad, which must agree along every enabled link of a media pipeline before it
+//! streams.
 
 use super::abi::{self, zeroed, MbusFramefmt, Rect};
 use super::device::Device;
