@@ -55,7 +55,7 @@ fn exactly_the_shaken_takes_are_rejected_and_reshot() {
     assert_eq!(verdicts(&s), expected);
     // The steady third take is what goes into the stack, not a shaken one.
     let steady = load(&bundle_dir("shaken").join("frame_02.jpg"));
-    assert_eq!(s.frames[2].image.data(), steady.data());
+    assert_eq!(s.frames[2].data(), steady.data());
     // Shaken takes carry a blur estimate well above a pixel, steady ones below.
     let p2 = &s.planes[2].takes;
     assert!(p2[0].blur_px > 2.0 && p2[1].blur_px > 2.0, "{p2:?}");

@@ -4,6 +4,9 @@ use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
 use std::path::Path;
 use std::process::Command;
 
+mod common;
+use common::stacks::exif_orientation;
+
 fn fuse(args: &[&Path]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_focusd"))
         .args(["fuse", "--no-align", "-o"])
@@ -46,16 +49,6 @@ fn jpeg_with_exif(img: &image::RgbImage, exif: Vec<u8>) -> Vec<u8> {
     let mut jpeg = Jpeg::from_bytes(Bytes::from(buf.into_inner())).unwrap();
     jpeg.set_exif(Some(Bytes::from(exif)));
     jpeg.encoder().bytes().to_vec()
-}
-
-fn orientation_of(path: &Path) -> Option<u32> {
-    let file = std::fs::File::open(path).unwrap();
-    let exif = exif::Reader::new()
-        .read_from_container(&mut std::io::BufReader::new(file))
-        .ok()?;
-    exif.get_field(exif::Tag::Orientation, exif::In::PRIMARY)?
-        .value
-        .get_uint(0)
 }
 
 fn make_of(path: &Path) -> Option<String> {
@@ -158,7 +151,7 @@ fn exif_orientation_is_applied_and_the_output_says_upright() {
             p
         })
         .collect();
-    assert_eq!(orientation_of(&frames[1]), Some(6));
+    assert_eq!(exif_orientation(&frames[1]), Some(6));
     let out = dir.path().join("out.jpg");
     let mut args: Vec<&Path> = vec![&out];
     args.extend(frames.iter().map(|p| p.as_path()));
@@ -178,7 +171,7 @@ fn exif_orientation_is_applied_and_the_output_says_upright() {
         diff < 4.0,
         "mean difference from the upright frame {diff:.2}"
     );
-    assert_eq!(orientation_of(&out), Some(1));
+    assert_eq!(exif_orientation(&out), Some(1));
     assert_eq!(make_of(&out).as_deref(), Some("frame1"));
 }
 

@@ -5,10 +5,12 @@
 //! sweep-and-reshoot logic the phone runs.
 
 pub mod gate;
+pub mod hold;
 pub mod record;
 pub mod sweep;
 pub mod trigger;
 
+use crate::develop::RawFrame;
 use crate::stack::image::Image;
 use serde::{Deserialize, Serialize};
 
@@ -54,9 +56,35 @@ pub trait Clock: Send {
 /// One captured frame and when it was exposed.
 #[derive(Clone, Debug)]
 pub struct Take {
-    pub image: Image<u8>,
+    pub frame: Frame,
     pub exposure_start: Nanos,
     pub exposure_end: Nanos,
+}
+
+/// A take's pixels: a picture, or a raw mosaic kept as it came, developed once the sweep is
+/// done so that the lens never waits for a demosaic.
+#[derive(Clone, Debug)]
+pub enum Frame {
+    Picture(Image<u8>),
+    Raw(RawFrame),
+}
+
+/// Pictures from a sweep's frames, in order: raw ones developed by `develop` (one call each,
+/// each mosaic freed as soon as it is developed), pictures as they are.
+pub fn develop(
+    frames: Vec<Frame>,
+    develop: &mut dyn FnMut(&RawFrame) -> Result<Image<u8>, String>,
+) -> Result<Vec<Image<u8>>, CaptureError> {
+    frames
+        .into_iter()
+        .enumerate()
+        .map(|(i, f)| match f {
+            Frame::Picture(img) => Ok(img),
+            Frame::Raw(raw) => {
+                develop(&raw).map_err(|e| CaptureError::device(format!("raw frame {i}"), e))
+            }
+        })
+        .collect()
 }
 
 /// A camera with a lens that can be moved to an absolute position.
@@ -68,6 +96,11 @@ pub trait Camera: Send {
     fn focus(&mut self, plane: usize, position: i32) -> Result<(), CaptureError>;
     /// The next frame exposed entirely after the last `focus` returned.
     fn capture(&mut self) -> Result<Take, CaptureError>;
+    /// The counter-clockwise turn, in degrees, that makes the sensor's pictures upright
+    /// (`V4L2_CID_CAMERA_SENSOR_ROTATION`, a bundle's `rotation`); 0 when unknown.
+    fn sensor_rotation(&self) -> i64 {
+        0
+    }
     /// Puts the lens back where it was found and stops streaming. Called on every way out of a
     /// sweep (success, error, cancel); must be safe to call twice.
     fn release(&mut self) -> Result<(), CaptureError>;

@@ -50,6 +50,10 @@ impl Camera for Recording<'_> {
         Ok(take)
     }
 
+    fn sensor_rotation(&self) -> i64 {
+        self.inner.sensor_rotation()
+    }
+
     fn release(&mut self) -> Result<(), CaptureError> {
         self.inner.release()
     }

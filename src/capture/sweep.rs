@@ -2,8 +2,11 @@
 //! reshooting every take the motion gate rejects.
 
 use super::gate::{measure, Motion, Rest, Thresholds};
+use super::hold::{Hold, HoldTracker};
 use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Stage, Take};
 use crate::base::setting::{Bounds, Invalid};
+use crate::develop::{RawFrame, StackDeveloper};
+use crate::stack::image::Image;
 use serde::{Deserialize, Serialize};
 
 /// What to do when every take of a plane was shaken.
@@ -125,10 +128,12 @@ pub struct PlaneReport {
     pub takes: Vec<TakeReport>,
 }
 
-/// The sweep's result: one frame per plane, nearest first, and what happened.
+/// The sweep's result: one picture per plane, nearest first, and what happened.
 pub struct Sweep {
-    pub frames: Vec<Take>,
+    pub frames: Vec<Image<u8>>,
     pub planes: Vec<PlaneReport>,
+    /// Which way the phone was held while it was found still.
+    pub hold: Hold,
     /// When the phone was found still, and when the sweep ended.
     pub started: Nanos,
     pub ended: Nanos,
@@ -152,7 +157,8 @@ impl Monitor for Unmonitored {
 }
 
 /// Runs a sweep. The camera is released on every way out, and its release error is reported
-/// only when the sweep itself succeeded.
+/// only when the sweep itself succeeded. Raw takes are developed after the release, with one
+/// white balance for the stack.
 pub fn sweep(
     camera: &mut dyn Camera,
     imu: &mut dyn Imu,
@@ -160,11 +166,27 @@ pub fn sweep(
     cfg: &SweepConfig,
     monitor: &dyn Monitor,
 ) -> Result<Sweep, CaptureError> {
+    let mut stack = StackDeveloper::default();
+    sweep_developing(camera, imu, clock, cfg, monitor, &mut |raw| {
+        stack.develop(raw)
+    })
+}
+
+/// [`sweep`] with the raw takes developed by `develop`, once the lens is done.
+pub fn sweep_developing(
+    camera: &mut dyn Camera,
+    imu: &mut dyn Imu,
+    clock: &dyn Clock,
+    cfg: &SweepConfig,
+    monitor: &dyn Monitor,
+    develop: &mut dyn FnMut(&RawFrame) -> Result<Image<u8>, String>,
+) -> Result<Sweep, CaptureError> {
     let result = run(camera, imu, clock, cfg, monitor);
     let released = camera.release();
-    let sweep = result?;
+    let (takes, sweep) = result?;
     released?;
-    Ok(sweep)
+    let frames = super::develop(takes.into_iter().map(|t| t.frame).collect(), develop)?;
+    Ok(Sweep { frames, ..sweep })
 }
 
 fn run(
@@ -173,12 +195,12 @@ fn run(
     clock: &dyn Clock,
     cfg: &SweepConfig,
     monitor: &dyn Monitor,
-) -> Result<Sweep, CaptureError> {
+) -> Result<(Vec<Take>, Sweep), CaptureError> {
     let range = camera.lens_range();
     cfg.validate(range)
         .map_err(|e| CaptureError::device("sweep config", e.to_string()))?;
     monitor.progress(Stage::WaitingStill, 0, cfg.planes);
-    let (rest, started) = wait_still(imu, clock, cfg, monitor)?;
+    let (rest, started, hold) = wait_still(imu, clock, cfg, monitor)?;
     let mut frames = Vec::with_capacity(cfg.planes);
     let mut planes = Vec::with_capacity(cfg.planes);
     for (plane, lens) in cfg.positions(range).into_iter().enumerate() {
@@ -233,12 +255,14 @@ fn run(
         planes.push(report);
     }
     monitor.progress(Stage::Sweeping, cfg.planes, cfg.planes);
-    Ok(Sweep {
-        frames,
+    let sweep = Sweep {
+        frames: Vec::new(),
         planes,
+        hold,
         started,
         ended: clock.now(),
-    })
+    };
+    Ok((frames, sweep))
 }
 
 fn take_report(take: usize, t: &Take, m: &Motion) -> TakeReport {
@@ -255,27 +279,30 @@ fn take_report(take: usize, t: &Take, m: &Motion) -> TakeReport {
 }
 
 /// Waits until the gyroscope has been still for `still_ms`, stepping a quarter of that at a
-/// time; returns what rest looks like then, and when.
+/// time; returns what rest looks like then, when, and the hold (each window's gravity seen).
 fn wait_still(
     imu: &mut dyn Imu,
     clock: &dyn Clock,
     cfg: &SweepConfig,
     monitor: &dyn Monitor,
-) -> Result<(Rest, Nanos), CaptureError> {
+) -> Result<(Rest, Nanos, Hold), CaptureError> {
     let span = cfg.still_ms as Nanos * 1_000_000;
     let step = (span / 4).max(1_000_000);
     let begin = clock.now();
     let mut end = begin + span;
+    let mut hold = HoldTracker::default();
     loop {
         if monitor.cancelled() {
             return Err(CaptureError::Cancelled);
         }
         clock.sleep_until(end);
         let samples = imu.samples(end - span, end)?;
-        if is_still(&samples, cfg.still_gyro_rms) {
-            if let Some(rest) = Rest::from_samples(&samples) {
-                return Ok((rest, end));
-            }
+        let rest = Rest::from_samples(&samples);
+        if let Some(r) = &rest {
+            hold.see(r.gravity);
+        }
+        if let Some(rest) = rest.filter(|_| is_still(&samples, cfg.still_gyro_rms)) {
+            return Ok((rest, end, hold.hold()));
         }
         if end - begin >= cfg.still_timeout_ms as Nanos * 1_000_000 {
             return Err(CaptureError::NotStill {
@@ -304,4 +331,155 @@ fn is_still(samples: &[super::ImuSample], rms: f64) -> bool {
         let var = gyro.iter().map(|v| (v[a] - mean).powi(2)).sum::<f64>() / n;
         var.is_finite() && var.sqrt() <= rms
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture::{Frame, ImuSample};
+    use crate::develop::{BayerOrder, RawLayout, IDENTITY};
+    use std::sync::{Arc, Mutex};
+
+    /// What happened, in order: lens moves, takes and developments.
+    type Log = Arc<Mutex<Vec<&'static str>>>;
+
+    /// A camera handing out raw takes, logging each move and take.
+    struct RawCamera {
+        log: Log,
+        t: Nanos,
+    }
+
+    impl Camera for RawCamera {
+        fn lens_range(&self) -> (i32, i32) {
+            (0, 1023)
+        }
+        fn focus(&mut self, _plane: usize, _position: i32) -> Result<(), CaptureError> {
+            self.log.lock().expect("log").push("move");
+            Ok(())
+        }
+        fn capture(&mut self) -> Result<Take, CaptureError> {
+            self.log.lock().expect("log").push("take");
+            self.t += 40_000_000;
+            let layout = RawLayout {
+                packing: crate::develop::raw::Packing::Bits8,
+                width: 4,
+                height: 4,
+                stride: 0,
+                order: BayerOrder::Rggb,
+                black_level: 0,
+                matrix: IDENTITY,
+            };
+            let raw = crate::develop::RawFrame::copy(&[90; 16], layout).expect("raw");
+            Ok(Take {
+                frame: Frame::Raw(raw),
+                exposure_start: self.t,
+                exposure_end: self.t + 10_000_000,
+            })
+        }
+        fn release(&mut self) -> Result<(), CaptureError> {
+            Ok(())
+        }
+    }
+
+    /// A phone at rest: gyro 0, gravity along y, a sample a millisecond.
+    struct Resting;
+
+    impl Imu for Resting {
+        fn samples(&mut self, from: Nanos, to: Nanos) -> Result<Vec<ImuSample>, CaptureError> {
+            let ms = 1_000_000;
+            Ok((from / ms..=to / ms)
+                .flat_map(|i| {
+                    [
+                        ImuSample {
+                            t: i * ms,
+                            sensor: Sensor::Gyro,
+                            v: [0.0; 3],
+                        },
+                        ImuSample {
+                            t: i * ms,
+                            sensor: Sensor::Accel,
+                            v: [0.0, 9.81, 0.0],
+                        },
+                    ]
+                })
+                .filter(|s| (from..=to).contains(&s.t))
+                .collect())
+        }
+    }
+
+    struct Frozen(std::sync::atomic::AtomicI64);
+
+    impl Clock for Frozen {
+        fn now(&self) -> Nanos {
+            self.0.load(std::sync::atomic::Ordering::SeqCst)
+        }
+        fn sleep_until(&self, t: Nanos) {
+            self.0.fetch_max(t, std::sync::atomic::Ordering::SeqCst);
+        }
+    }
+
+    #[test]
+    fn raw_takes_are_developed_after_the_last_move_not_between_planes() {
+        let log: Log = Arc::default();
+        let mut camera = RawCamera {
+            log: log.clone(),
+            t: 1_000_000_000,
+        };
+        let clock = Frozen(1_000_000_000.into());
+        let cfg = SweepConfig {
+            planes: 4,
+            ..SweepConfig::default()
+        };
+        let mut stack = StackDeveloper::default();
+        let s = sweep_developing(
+            &mut camera,
+            &mut Resting,
+            &clock,
+            &cfg,
+            &Unmonitored,
+            &mut |raw| {
+                log.lock().expect("log").push("develop");
+                stack.develop(raw)
+            },
+        )
+        .expect("sweeps");
+        assert_eq!(s.frames.len(), 4);
+        assert_eq!((s.frames[0].width(), s.frames[0].channels()), (4, 3));
+        let log = log.lock().expect("log").clone();
+        let last_move = log.iter().rposition(|&e| e == "move").expect("moves");
+        let first_develop = log.iter().position(|&e| e == "develop").expect("develops");
+        assert!(first_develop > last_move, "{log:?}");
+        // Between any two moves: takes only.
+        assert_eq!(
+            log,
+            ["move", "take", "move", "take", "move", "take", "move", "take"]
+                .into_iter()
+                .chain(["develop"; 4])
+                .collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn a_stack_of_held_13_mp_mosaics_fits_the_default_budget() {
+        // Ten 4208x3120 takes held until the sweep ends, at 10 bits in 16-bit words (the
+        // largest packing a phone profile captures) and at 8 bits.
+        let frame = |packing| {
+            crate::develop::raw::layout(packing, 4208, 3120, 0, usize::MAX)
+                .expect("layout")
+                .1
+        };
+        let ten = 10 * frame(crate::develop::raw::Packing::Le10);
+        let eight = 10 * frame(crate::develop::raw::Packing::Bits8);
+        assert_eq!((ten, eight), (262_579_200, 131_289_600));
+        assert!(ten < crate::stack::DEFAULT_BUDGET, "{ten}");
+        // While developing, the mosaics not yet developed and the pictures made so far are
+        // held together: at most all of both. At the 8 bits both phone profiles capture, that
+        // is within the budget too.
+        let pictures = 10 * 4208 * 3120 * 3;
+        assert!(
+            eight + pictures < crate::stack::DEFAULT_BUDGET,
+            "{}",
+            eight + pictures
+        );
+    }
 }

@@ -6,7 +6,11 @@ use super::progress::Bar;
 use anyhow::{Context, Result};
 use focusd::backend::replay::BundleWriter;
 use focusd::capture::record::Recording;
-use focusd::capture::sweep::{sweep, PlaneReport, Unmonitored};
+use focusd::capture::{
+    self,
+    sweep::{sweep, PlaneReport, Unmonitored},
+};
+use focusd::develop::StackDeveloper;
 use focusd::files::imageio as io;
 use focusd::service::config::Config;
 use focusd::service::fuse_settings::QUALITY;
@@ -147,18 +151,28 @@ pub fn record(a: &RecordArgs) -> Result<()> {
         .or_else(|_| rig.imu.samples(begin, now))
         .context("reading back the IMU trace of the sweep")?;
     let mut w = BundleWriter::create_new(&a.output, rig.camera.lens_range())
-        .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?;
-    for t in &takes {
-        let png = io::encode(&t.take.image, image::ImageFormat::Png, 100)?;
-        let exposure = (t.take.exposure_start, t.take.exposure_end);
-        w.add_take(t.plane, t.lens, exposure, "png", &png)
+        .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?
+        .with_rotation(rig.camera.sensor_rotation());
+    // Raw takes are developed now, the sweep done, with one white balance for them all.
+    let (placed, frames): (Vec<_>, Vec<_>) = takes
+        .into_iter()
+        .map(|t| {
+            let exposure = (t.take.exposure_start, t.take.exposure_end);
+            ((t.plane, t.lens, exposure), t.take.frame)
+        })
+        .unzip();
+    let mut stack = StackDeveloper::default();
+    let pictures = capture::develop(frames, &mut |raw| stack.develop(raw))?;
+    for ((plane, lens, exposure), picture) in placed.iter().zip(&pictures) {
+        let png = io::encode(picture, image::ImageFormat::Png, 100)?;
+        w.add_take(*plane, *lens, *exposure, "png", &png)
             .with_context(|| format!("{}: cannot write a take", a.output.display()))?;
     }
     w.finish(&imu)
         .with_context(|| format!("{}: cannot write the bundle", a.output.display()))?;
     eprintln!(
         "focusd: recorded {} takes and {} IMU samples into {}",
-        takes.len(),
+        placed.len(),
         imu.len(),
         a.output.display()
     );

@@ -8,9 +8,11 @@
 //! which the fusion would then stitch together as visible seams.
 
 pub mod demosaic;
+pub mod frame;
 pub mod raw;
 
 use crate::stack::image::Image;
+pub use frame::{RawFrame, RawLayout, StackDeveloper};
 
 /// The colour of the top-left 2×2 cell of a Bayer mosaic, by its V4L2 name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -36,16 +36,17 @@ impl Packing {
     }
 }
 
-/// The samples of a `width`×`height` frame, row by row. `stride` is the driver's bytes per line
-/// (0: rows unpadded); the last row need not be padded. A buffer too short for the geometry, or
-/// a stride shorter than a row, is an error naming both.
-pub fn unpack(
+/// Checks that `len` bytes hold a `width`×`height` frame at `stride` bytes a row (0: rows
+/// unpadded; the last row need not be padded); returns the stride and the bytes the frame
+/// takes. A buffer too short for the geometry, or a stride shorter than a row, is an error
+/// naming both.
+pub fn layout(
     packing: Packing,
     width: usize,
     height: usize,
     stride: usize,
-    bytes: &[u8],
-) -> Result<Vec<u16>, String> {
+    len: usize,
+) -> Result<(usize, usize), String> {
     let row = packing.row_bytes(width);
     let stride = if stride == 0 { row } else { stride };
     if stride < row {
@@ -54,12 +55,24 @@ pub fn unpack(
         ));
     }
     let needed = stride * height.saturating_sub(1) + row;
-    if height == 0 || width == 0 || bytes.len() < needed {
+    if height == 0 || width == 0 || len < needed {
         return Err(format!(
-            "{width}x{height} frame: buffer of {} bytes is too short, {needed} needed",
-            bytes.len()
+            "{width}x{height} frame: buffer of {len} bytes is too short, {needed} needed"
         ));
     }
+    Ok((stride, needed))
+}
+
+/// The samples of a `width`×`height` frame, row by row, laid out as [`layout`] checks.
+pub fn unpack(
+    packing: Packing,
+    width: usize,
+    height: usize,
+    stride: usize,
+    bytes: &[u8],
+) -> Result<Vec<u16>, String> {
+    let (stride, _) = layout(packing, width, height, stride, bytes.len())?;
+    let row = packing.row_bytes(width);
     let mut out = Vec::with_capacity(width * height);
     for y in 0..height {
         let line = &bytes[y * stride..][..row];

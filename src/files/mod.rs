@@ -3,6 +3,7 @@
 pub mod bounded_read;
 mod error;
 pub mod imageio;
+pub mod orientation;
 pub mod outputs;
 mod temp;
 

@@ -10,12 +10,15 @@ use crate::backend::replay::faults::{self, Fault};
 use crate::backend::replay::{self, Bundle};
 use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
+use crate::capture::hold::Hold;
 use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
-use crate::capture::{Camera, Clock, Imu, Take};
+use crate::capture::{Camera, CaptureError, Clock, Imu};
+use crate::files::orientation::{tag_jpeg, Orientation};
 use crate::files::outputs::Outputs;
 use crate::stack::fuse::{fuse, FuseError};
 use crate::stack::memory::{mib, Plan};
 use crate::stack::Progress;
+use image::ImageFormat;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -117,7 +120,18 @@ pub struct Report {
     pub memory: MemoryReport,
     /// Which way the frames were focused, as the occlusion edges tell (`OrderEvidence`'s line).
     pub focus_order: String,
+    /// Which way the picture is turned upright, and from what.
+    pub orientation: OrientationReport,
     pub output: String,
+}
+
+/// The picture's turn: its EXIF Orientation (written into a JPEG, applied to PNG and TIFF
+/// pixels), the sensor's rotation and the hold it combines.
+#[derive(Clone, Debug, Serialize)]
+pub struct OrientationReport {
+    pub exif: u16,
+    pub sensor_rotation: i64,
+    pub hold: Hold,
 }
 
 /// How the fuse fitted its memory budget (`stack::memory::Plan`).
@@ -164,6 +178,7 @@ pub fn run(
     let Sweep {
         frames,
         planes,
+        hold,
         started,
         ended,
     } = sweep(
@@ -175,8 +190,7 @@ pub fn run(
     )?;
     let capture_ms = t0.elapsed().as_secs_f64() * 1e3;
     let params = fuse_cfg.params(frames.len());
-    let images = frames.into_iter().map(|t: Take| t.image).collect();
-    let fused = fuse(images, &params, progress)?;
+    let fused = fuse(frames, &params, progress)?;
     if !fused.memory.fits() {
         tracing::warn!("{}; raise [fuse] memory_mb", fused.memory);
     }
@@ -191,7 +205,18 @@ pub fn run(
         return Err(FuseError::Cancelled.into());
     }
     let t = Instant::now();
-    let bytes = crate::files::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
+    let rotation = rig.camera.sensor_rotation();
+    let upright = Orientation::from_sensor_rotation(rotation)
+        .map_err(|e| CaptureError::device("camera", e))?
+        .then(Orientation::clockwise(hold.quarter_turns));
+    // JPEG says the turn in its EXIF tag; PNG and TIFF get the pixels turned.
+    let bytes = if format == ImageFormat::Jpeg {
+        let plain = crate::files::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
+        tag_jpeg(&plain, upright).map_err(|e| CaptureError::device("output", e))?
+    } else {
+        let turned = upright.turn(&fused.image);
+        crate::files::imageio::encode(&turned, format, fuse_cfg.quality)?
+    };
     outs.write(output, &bytes)?;
     let mut timings = BTreeMap::from([("capture", capture_ms)]);
     for (stage, d) in &fused.timings {
@@ -209,6 +234,11 @@ pub fn run(
         timings_ms: timings,
         memory: MemoryReport::from(&fused.memory),
         focus_order: fused.order.to_string(),
+        orientation: OrientationReport {
+            exif: upright.exif(),
+            sensor_rotation: rotation,
+            hold,
+        },
         output: output.display().to_string(),
     };
     if let Some(path) = report {

@@ -31,3 +31,14 @@ pub fn load(path: &Path) -> Image<u8> {
     let (w, h) = img.dimensions();
     Image::from_vec(w as usize, h as usize, 3, img.into_raw())
 }
+
+/// The EXIF Orientation of an image file, read with an EXIF reader (kamadak-exif).
+pub fn exif_orientation(path: &Path) -> Option<u32> {
+    let bytes = std::fs::read(path).ok()?;
+    let exif = exif::Reader::new()
+        .read_from_container(&mut std::io::Cursor::new(bytes))
+        .ok()?;
+    exif.get_field(exif::Tag::Orientation, exif::In::PRIMARY)?
+        .value
+        .get_uint(0)
+}

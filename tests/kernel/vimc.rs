@@ -10,24 +10,32 @@
 //! - with Debayer B's link into the scaler enabled instead of Debayer A's, the profile's link
 //!   replaces it (the other enabled link into the same pad is disabled first) and streams;
 //! - the shipped `vimc` profile streams RGB through debayer and scaler, a variant of it the raw
-//!   Bayer path, another a scaled frame;
+//!   Bayer path, another a scaled frame, each printing how far apart its takes came;
+//! - Sensor A set to GRBG, BGGR and GBRG at run time: focusd takes each order from the sensor,
+//!   and its own demosaic of the raw node's frames gives the test pattern's colour bars;
 //! - the lens is found through the graph (Lens A, ancillary link to Sensor A), swept across a
-//!   whole capture with its position read back at every plane, and restored; the IMU is a fake
-//!   IIO tree polled on the guest's monotonic clock.
+//!   whole capture with its position read back at every plane, its node held open by the same
+//!   descriptor throughout, and restored; the IMU is a fake IIO tree polled on the guest's
+//!   monotonic clock.
 
 use focusd::backend::iio::{IioConfig, IioImu, Mode};
 use focusd::backend::sys::{monotonic_now, MonotonicClock};
 use focusd::backend::v4l2::pipeline;
-use focusd::backend::v4l2::profile::{LinkSpec, PadRef, PadSpec, Profile};
+use focusd::backend::v4l2::profile::{LinkSpec, Names, PadRef, PadSpec, Profile};
 use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
-use focusd::backend::videodev::abi::{CID_FOCUS_ABSOLUTE, MEDIA_LNK_FL_ENABLED};
+use focusd::backend::videodev::abi::{
+    MbusFramefmt, CID_FOCUS_ABSOLUTE, FIELD_NONE, MEDIA_LNK_FL_ENABLED,
+};
 use focusd::backend::videodev::media::{self, Topology};
-use focusd::backend::videodev::Device;
+use focusd::backend::videodev::subdev;
+use focusd::backend::videodev::{BufType, Device};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
-use focusd::capture::{Camera, CaptureError, Imu, Sensor, Take};
+use focusd::capture::{Camera, CaptureError, Frame, Imu, Sensor, Take};
+use focusd::develop::{BayerOrder, Developer, StackDeveloper, IDENTITY};
 use focusd::stack::Image;
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 #[macro_use]
 mod support;
@@ -48,13 +56,12 @@ fn run() -> Check {
     let rgb = streams("RGB through debayer and scaler", shipped()?, (640, 480))?;
     let mut raw = shipped()?;
     raw.capture = "Raw Capture 0".into();
-    raw.format.fourcc = "RGGB".into();
-    streams("raw Bayer (RGGB)", raw, (640, 480))?;
+    raw.format.fourcc = "BAYER8".into();
+    streams("raw Bayer (the sensor's order)", raw, (640, 480))?;
+    bayer_orders()?;
     let mut scaled = shipped()?;
-    scaled.pads.last_mut().expect("pads").width = 320;
-    scaled.pads.last_mut().expect("pads").height = 240;
-    scaled.format.width = 320;
-    scaled.format.height = 240;
+    scaled.pads.last_mut().expect("pads").width = Some(320);
+    scaled.pads.last_mut().expect("pads").height = Some(240);
     streams("RGB scaled to 320x240", scaled, (320, 240))?;
     lens_sweep(&rgb)
 }
@@ -93,6 +100,14 @@ fn cfg(profile: Option<String>) -> V4l2Config {
 
 fn capture(cam: &mut V4l2Camera) -> Result<Take, String> {
     cam.capture().map_err(|e| format!("capture: {e}"))
+}
+
+/// A take's picture: raw takes developed as after a sweep.
+fn picture(t: Take, stack: &mut StackDeveloper) -> Result<Image<u8>, String> {
+    match t.frame {
+        Frame::Picture(img) => Ok(img),
+        Frame::Raw(raw) => stack.develop(&raw),
+    }
 }
 
 fn luma_spread(img: &Image<u8>) -> f64 {
@@ -171,18 +186,18 @@ fn mismatches() -> Check {
     let mut p = shipped()?;
     p.pads.push(PadSpec {
         pad: PadRef("Scaler".into(), 1),
-        code: "SRGGB8_1X8".into(),
-        width: 640,
-        height: 480,
+        code: "YUYV8_2X8".into(),
+        width: None,
+        height: None,
         crop: None,
     });
     expect_error(
         &p,
         "wrong-code",
-        "pad \"Scaler\":1: asked for SRGGB8_1X8/640x480, the driver set RGB888_1X24/640x480",
+        "pad \"Scaler\":1: asked for YUYV8_2X8/640x480, the driver set RGB888_1X24/640x480",
     )?;
     let mut p = shipped()?;
-    p.sensor = "imx258".into();
+    p.sensor = Names::One("imx258".into());
     expect_error(
         &p,
         "other-sensor",
@@ -208,20 +223,40 @@ fn detected() -> Check {
         choice.profile.name,
         choice.reason
     );
+    let order = raw_node_follows_sensor()?;
     let mut cam = v4l2::open(&cfg(None)).map_err(|e| format!("open, profile chosen: {e}"))?;
-    let take = capture(&mut cam)?;
+    let take = picture(capture(&mut cam)?, &mut StackDeveloper::default())?;
     cam.release().map_err(|e| format!("release: {e}"))?;
     ensure!(
-        (take.image.width(), take.image.height()) == (640, 480),
+        (take.width(), take.height()) == (640, 480),
         "the chosen profile captured {}x{}",
-        take.image.width(),
-        take.image.height()
+        take.width(),
+        take.height()
     );
     ok(format!(
-        "no profile configured: {} chosen by {}, streams 640x480",
+        "no profile configured: {} chosen by {}, streams 640x480 (Sensor A in {order})",
         choice.profile.name, choice.reason
     ));
     Ok(())
+}
+
+/// vimc 6.1 validates every enabled link of the graph before streaming, so Raw Capture 0's
+/// format must match Sensor A's code even when capturing RGB; vimc's sensor offers every
+/// order, and from an RGB format focusd takes the first 8-bit Bayer code it lists. Sets Raw
+/// Capture 0 to that order (what another program would have had to do), and names it.
+fn raw_node_follows_sensor() -> Result<String, String> {
+    let sensor = node("Sensor A")?;
+    let s = Device::open(&sensor).map_err(|e| format!("{}: {e}", sensor.display()))?;
+    let codes = subdev::codes(&s, 0).map_err(|e| format!("Sensor A's codes: {e}"))?;
+    let current = subdev::format(&s, 0).ok().map(|f| f.code);
+    let code = v4l2::sensor::choose_code(&codes, current, 8)?;
+    let (order, bits) = v4l2::sensor::bayer_of(code).ok_or("not a Bayer code")?;
+    let fourcc = v4l2::sensor::capture_format(order, bits).fourcc();
+    let raw = node("Raw Capture 0")?;
+    Device::open(&raw)
+        .and_then(|d| d.set_format(BufType::Capture, 640, 480, fourcc))
+        .map_err(|e| format!("{}: {e}", raw.display()))?;
+    Ok(v4l2::profile::mbus_name(code))
 }
 
 /// vimc's media device and its graph.
@@ -298,15 +333,23 @@ fn streams(what: &str, profile: Profile, size: (usize, usize)) -> Result<String,
     let mut cam = v4l2::open(&cfg(Some(path.clone()))).map_err(|e| format!("{what}: open: {e}"))?;
     let d = cam.describe();
     let mut spreads = Vec::new();
+    let mut stack = StackDeveloper::default();
+    let (mut takes, mut apart) = (Vec::new(), Vec::new());
     for _ in 0..3 {
-        let t = capture(&mut cam).map_err(|e| format!("{what}: {e}"))?;
+        let t0 = Instant::now();
+        takes.push(capture(&mut cam).map_err(|e| format!("{what}: {e}"))?);
+        apart.push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+    // Developed once the takes are in, as after a sweep.
+    for t in takes {
+        let t = picture(t, &mut stack).map_err(|e| format!("{what}: {e}"))?;
         ensure!(
-            (t.image.width(), t.image.height()) == size,
+            (t.width(), t.height()) == size,
             "{what}: frame {}x{}, expected {size:?}",
-            t.image.width(),
-            t.image.height()
+            t.width(),
+            t.height()
         );
-        spreads.push(luma_spread(&t.image));
+        spreads.push(luma_spread(&t));
     }
     cam.release().map_err(|e| format!("{what}: release: {e}"))?;
     ensure!(
@@ -314,9 +357,98 @@ fn streams(what: &str, profile: Profile, size: (usize, usize)) -> Result<String,
         "{what}: flat frames (luma spread {spreads:.1?}): not the test pattern"
     );
     ok(format!(
-        "{what}: {d}: 3 frames of {size:?} with the test pattern (luma spread {spreads:.0?})"
+        "{what}: {d}: 3 frames of {size:?} with the test pattern (luma spread {spreads:.0?}), \
+         takes {apart:.0?} ms apart"
     ));
     Ok(path)
+}
+
+/// Sets Sensor A to several Bayer orders at run time (as `media-ctl -V` would), then captures
+/// from the raw node with the raw profile: focusd must take each order from the sensor and its
+/// demosaic must give the 75% colour bars (white, yellow, cyan, green, magenta, red, blue,
+/// black; v4l2-tpg-core.c's `bars[0]`) their colours.
+fn bayer_orders() -> Check {
+    let sensor = node("Sensor A")?;
+    let dev = Device::open(&sensor).map_err(|e| format!("{}: {e}", sensor.display()))?;
+    let mut raw = shipped()?;
+    raw.capture = "Raw Capture 0".into();
+    raw.format.fourcc = "BAYER8".into();
+    let path = write_profile(&raw, "orders")?;
+    const BARS: [[bool; 3]; 8] = [
+        [true, true, true],
+        [true, true, false],
+        [false, true, true],
+        [false, true, false],
+        [true, false, true],
+        [true, false, false],
+        [false, false, true],
+        [false, false, false],
+    ];
+    for (name, code, order) in [
+        ("SGRBG8_1X8", 0x3002, BayerOrder::Grbg),
+        ("SBGGR8_1X8", 0x3001, BayerOrder::Bggr),
+        ("SGBRG8_1X8", 0x3013, BayerOrder::Gbrg),
+    ] {
+        let f = MbusFramefmt {
+            code,
+            width: 640,
+            height: 480,
+            field: FIELD_NONE,
+            ..MbusFramefmt::default()
+        };
+        subdev::set_format(&dev, 0, f).map_err(|e| format!("setting Sensor A to {name}: {e}"))?;
+        let mut cam =
+            v4l2::open(&cfg(Some(path.clone()))).map_err(|e| format!("{name}: open: {e}"))?;
+        let d = cam.describe();
+        let take = capture(&mut cam).map_err(|e| format!("{name}: {e}"))?;
+        cam.release().map_err(|e| format!("{name}: release: {e}"))?;
+        let Frame::Raw(r) = take.frame else {
+            return Err(format!("{name}: the raw node gave a converted frame"));
+        };
+        ensure!(
+            r.order == order,
+            "{name}: focusd took the order {:?}",
+            r.order
+        );
+        // Unit gains: grey-world would pull the bars towards grey.
+        let mut dev = Developer {
+            white_balance: Some([1.0; 3]),
+            ..Developer::new(0, IDENTITY)
+        };
+        let img = dev.develop(r.mosaic().map_err(|e| format!("{name}: {e}"))?);
+        let mut seen = Vec::new();
+        for (i, want) in BARS.iter().enumerate() {
+            let bar = img.width() / 8;
+            let (x0, y0) = (i * bar + bar / 4, img.height() / 2 - 20);
+            let mut mean = [0.0f64; 3];
+            for y in y0..y0 + 40 {
+                for x in x0..x0 + bar / 2 {
+                    for (c, m) in mean.iter_mut().enumerate() {
+                        *m += f64::from(img.at(x, y, c));
+                    }
+                }
+            }
+            let n = (40 * (bar / 2)) as f64;
+            let mean = mean.map(|m| m / n);
+            seen.push(mean.map(|m| m.round() as u8));
+            let right = (0..3).all(|c| {
+                if want[c] {
+                    mean[c] > 128.0
+                } else {
+                    mean[c] < 64.0
+                }
+            });
+            ensure!(
+                right,
+                "{name}: bar {i} is {mean:.0?}, expected high channels {want:?}"
+            );
+        }
+        ok(format!(
+            "{name} set at run time: {d}: focusd took {order:?} and its demosaic gives the 8 \
+             colour bars {seen:?}"
+        ));
+    }
+    Ok(())
 }
 
 /// A fake IIO device at rest, polled: its samples are stamped when read, on this machine's
@@ -348,11 +480,29 @@ fn fake_imu() -> Result<IioConfig, String> {
     })
 }
 
-/// The camera with the lens position read back from the lens sub-device after every move.
+/// The camera with the lens position read back from the lens sub-device after every move,
+/// and the descriptors this process holds on the lens node at each move.
 struct ReadBack {
     cam: V4l2Camera,
     lens: Device,
+    lens_node: PathBuf,
     seen: Vec<(i32, i64)>,
+    open: Vec<Vec<String>>,
+}
+
+/// This process's file descriptors open on `node` (a lens the camera closed and reopened
+/// between moves would be powered down between them: the dw9714's runtime PM).
+fn fds_on(node: &Path) -> Vec<String> {
+    let mut fds: Vec<String> = fs::read_dir("/proc/self/fd")
+        .map(|d| {
+            d.flatten()
+                .filter(|e| fs::read_link(e.path()).is_ok_and(|t| t == node))
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    fds.sort();
+    fds
 }
 
 impl Camera for ReadBack {
@@ -367,6 +517,7 @@ impl Camera for ReadBack {
             .control(CID_FOCUS_ABSOLUTE)
             .map_err(|e| CaptureError::device("Lens A", e.to_string()))?;
         self.seen.push((position, now));
+        self.open.push(fds_on(&self.lens_node));
         Ok(())
     }
 
@@ -423,10 +574,13 @@ fn lens_sweep(profile: &str) -> Check {
         samples.len()
     ));
 
+    let before_sweep = fds_on(&lens_node);
     let mut rb = ReadBack {
         cam,
         lens,
+        lens_node: lens_node.clone(),
         seen: Vec::new(),
+        open: Vec::new(),
     };
     let sc = SweepConfig {
         planes: 5,
@@ -459,12 +613,22 @@ fn lens_sweep(profile: &str) -> Check {
         distinct == planes,
         "lens moves {moves:?} are not the planes {planes:?}"
     );
-    for f in &s.frames {
+    // The test's own descriptor and the camera's one, the same at every move as before it.
+    ensure!(
+        before_sweep.len() == 2 && rb.open.iter().all(|o| *o == before_sweep),
+        "descriptors on the lens node: {before_sweep:?} before the sweep, {:?} at the moves",
+        rb.open
+    );
+    ok(format!(
+        "the lens node stays open across the sweep (descriptors {before_sweep:?} at all {} \
+         moves)",
+        rb.open.len()
+    ));
+    for t in s.planes.iter().flat_map(|p| &p.takes) {
+        let (start, end) = (t.exposure_start_ns, t.exposure_end_ns);
         ensure!(
-            f.exposure_start < f.exposure_end && f.exposure_end <= monotonic_now(),
-            "frame window [{}, {}] is not in the past of CLOCK_MONOTONIC",
-            f.exposure_start,
-            f.exposure_end
+            start < end && end <= monotonic_now(),
+            "frame window [{start}, {end}] is not in the past of CLOCK_MONOTONIC"
         );
     }
     let after = rb

@@ -18,7 +18,7 @@ use focusd::backend::v4l2::{self, V4l2Camera, V4l2Config};
 use focusd::backend::videodev::abi::{self, Fract};
 use focusd::backend::videodev::{BufType, ControlDesc, Device, Stream};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
-use focusd::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Sensor, Take};
+use focusd::capture::{Camera, CaptureError, Frame, Imu, ImuSample, Nanos, Sensor, Take};
 use focusd::stack::Image;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -192,6 +192,14 @@ fn press(dev: &Device, info: &Info, name: &str) -> Check {
     set(dev, info.control(name)?.id, 0).map_err(|e| format!("pressing {name}: {e}"))
 }
 
+/// A take's picture (vivid's formats are all converted at capture).
+fn picture(t: &Take) -> Result<&Image<u8>, String> {
+    match &t.frame {
+        Frame::Picture(img) => Ok(img),
+        Frame::Raw(_) => Err("a raw frame from vivid".into()),
+    }
+}
+
 fn mean_luma(img: &Image<u8>) -> f64 {
     let sum: f64 = img
         .data()
@@ -318,7 +326,7 @@ fn lens_is_the_control(node: &Path, range: (i32, i32)) -> Check {
     let mut luma = Vec::new();
     for p in [range.0, range.1] {
         cam.focus(0, p).map_err(|e| format!("focus {p}: {e}"))?;
-        luma.push(mean_luma(&capture(&mut cam)?.image));
+        luma.push(mean_luma(picture(&capture(&mut cam)?)?));
     }
     ensure!(
         luma[1] - luma[0] > 60.0,
@@ -356,7 +364,7 @@ fn formats(node: &Path, info: &Info, raw: &Device, wanted: &[&str], sizes: &[(u3
             let mut cam = open(&cfg(node, Some(f), size))?;
             let take = capture(&mut cam)?;
             let g = raw.format(info.buf).map_err(|e| format!("G_FMT: {e}"))?;
-            let img = &take.image;
+            let img = picture(&take)?;
             let fourcc = String::from_utf8_lossy(&g.fourcc).trim_end().to_string();
             ensure!(
                 fourcc == *f,
@@ -654,7 +662,7 @@ fn stale_frames_dropped(node: &Path, range: (i32, i32)) -> Check {
             t.exposure_start,
             (returned - t.exposure_start) / 1000
         );
-        lumas.push(mean_luma(&t.image));
+        lumas.push(mean_luma(picture(&t)?));
     }
     let dark = lumas.iter().step_by(2).fold(f64::MIN, |a, &b| a.max(b));
     let bright = lumas
@@ -727,19 +735,23 @@ fn whole_sweep(node: &Path, range: (i32, i32)) -> Check {
     }
     // As in `streaming`: vivid's end-of-frame stamps lie 0.9 nominal periods after the frame's
     // (jittery) start, so neighbours may overlap by a little (up to half under a loaded TCG).
-    for w in s.frames.windows(2) {
-        let len = w[0].exposure_end - w[0].exposure_start;
+    let kept: Vec<(Nanos, Nanos)> = s
+        .planes
+        .iter()
+        .map(|p| (p.takes[0].exposure_start_ns, p.takes[0].exposure_end_ns))
+        .collect();
+    for w in kept.windows(2) {
+        let len = w[0].1 - w[0].0;
         ensure!(
-            w[1].exposure_start > w[0].exposure_start
-                && w[1].exposure_start >= w[0].exposure_end - len / 2,
+            w[1].0 > w[0].0 && w[1].0 >= w[0].1 - len / 2,
             "sweep frames overlap: [{}, {}] then [{}, {}]",
-            w[0].exposure_start,
-            w[0].exposure_end,
-            w[1].exposure_start,
-            w[1].exposure_end
+            w[0].0,
+            w[0].1,
+            w[1].0,
+            w[1].1
         );
     }
-    let lumas: Vec<f64> = s.frames.iter().map(|f| mean_luma(&f.image)).collect();
+    let lumas: Vec<f64> = s.frames.iter().map(mean_luma).collect();
     ensure!(
         lumas.windows(2).all(|w| w[0] > w[1] + 5.0),
         "mean luma over the planes {lumas:.1?} does not fall with the brightness {got:?}"

@@ -25,6 +25,10 @@ pub struct Manifest {
     /// The lens range of the camera that recorded it.
     pub lens_min: i32,
     pub lens_max: i32,
+    /// The sensor's rotation (degrees counter-clockwise that make its pictures upright, as
+    /// V4L2_CID_CAMERA_SENSOR_ROTATION): 0, 90, 180 or 270.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub rotation: i64,
     /// Every take in capture order.
     pub takes: Vec<TakeEntry>,
 }
@@ -137,6 +141,10 @@ impl Bundle {
 }
 
 /// Parses and checks `bundle.toml`; the error says what is wrong and where.
+fn is_zero(v: &i64) -> bool {
+    *v == 0
+}
+
 pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
     let m: Manifest = toml::from_str(text).map_err(|e| e.to_string().trim().to_string())?;
     if m.format != FORMAT {
@@ -149,6 +157,12 @@ pub fn parse_manifest(text: &str) -> Result<Manifest, String> {
         return Err(format!(
             "lens_min = {} is above lens_max = {}",
             m.lens_min, m.lens_max
+        ));
+    }
+    if ![0, 90, 180, 270].contains(&m.rotation) {
+        return Err(format!(
+            "rotation = {}: give 0, 90, 180 or 270 (degrees counter-clockwise)",
+            m.rotation
         ));
     }
     if m.takes.is_empty() {
@@ -368,9 +382,16 @@ impl BundleWriter {
                 format: FORMAT,
                 lens_min: lens_range.0,
                 lens_max: lens_range.1,
+                rotation: 0,
                 takes: Vec::new(),
             },
         }
+    }
+
+    /// Records the sensor's rotation (degrees counter-clockwise).
+    pub fn with_rotation(mut self, degrees: i64) -> BundleWriter {
+        self.manifest.rotation = degrees;
+        self
     }
 
     /// Adds a take whose encoded image is `bytes`, named after its plane and take.

@@ -7,7 +7,7 @@
 pub mod bundle;
 pub mod faults;
 
-use crate::capture::{Camera, CaptureError, Clock, Imu, ImuSample, Nanos, Take};
+use crate::capture::{Camera, CaptureError, Clock, Frame, Imu, ImuSample, Nanos, Take};
 pub use bundle::{Bundle, BundleError, BundleWriteError, BundleWriter};
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
@@ -92,6 +92,10 @@ impl Camera for ReplayCamera {
         (self.bundle.manifest.lens_min, self.bundle.manifest.lens_max)
     }
 
+    fn sensor_rotation(&self) -> i64 {
+        self.bundle.manifest.rotation
+    }
+
     fn focus(&mut self, plane: usize, _position: i32) -> Result<(), CaptureError> {
         if plane >= self.next.len() {
             return Err(self.bundle_error(format!(
@@ -145,7 +149,7 @@ impl Camera for ReplayCamera {
         }
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
-            image,
+            frame: Frame::Picture(image),
             exposure_start: entry.exposure_start_ns,
             exposure_end: entry.exposure_end_ns,
         })

@@ -20,7 +20,7 @@ use crate::backend::videodev::abi::{
     CID_FOCUS_AUTO,
 };
 use crate::backend::videodev::{BufType, Device, PlaneLayout, Stream};
-use crate::capture::{Camera, CaptureError, Nanos, Take};
+use crate::capture::{Camera, CaptureError, Frame, Nanos, Take};
 use crate::develop::{Developer, IDENTITY};
 use std::io;
 use std::path::{Path, PathBuf};
@@ -49,8 +49,10 @@ pub struct V4l2Camera {
     settled_at: Option<Nanos>,
     /// The previous frame's timestamp, for the frame interval when the driver gives none.
     last_stamp: Option<Nanos>,
-    /// Develops raw Bayer frames; its white balance, measured on the first, holds for the
-    /// whole stack.
+    /// The sensor's rotation control (degrees counter-clockwise), 0 without a profile.
+    rotation: i64,
+    /// Converts frames an ISP made; for raw Bayer frames, the black level and colour matrix
+    /// they carry to their development after the sweep.
     developer: Developer,
 }
 
@@ -79,12 +81,12 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
     let spec = ControlSpec::parse(cfg.focus_control.as_deref())
         .map_err(|e| CaptureError::device("[camera] config", format!("focus_control {e}")))?;
     let profiled;
+    let mut rotation = 0;
     // Raw frames are developed with the profile's black level and colour matrix.
     let mut developer = Developer::new(0, IDENTITY);
     let cfg = match profile_of(cfg)? {
         None => cfg,
         Some((profile, chosen_by)) => {
-            developer = Developer::new(profile.black_level, profile.colour_matrix);
             let p =
                 pipeline::apply(&profile, &cfg.sysfs_root).map_err(|e| match (e, chosen_by) {
                     (CaptureError::Device { device, reason }, Some(why)) => CaptureError::Device {
@@ -96,11 +98,23 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
                     },
                     (e, _) => e,
                 })?;
+            for note in &p.notes {
+                tracing::info!("device profile {}: {note}", profile.name);
+            }
+            rotation = p.rotation.unwrap_or(0);
+            let named = lens::named_lenses(&cfg.sysfs_root);
+            pipeline::check_lens(&p, cfg.lens.as_deref(), &named)
+                .map_err(|e| CaptureError::device(format!("device profile {}", profile.name), e))?;
+            let black = p
+                .format
+                .raw_bits()
+                .map_or(0, |bits| profile.black_level_at(bits));
+            developer = Developer::new(black, profile.colour_matrix);
             profiled = V4l2Config {
                 device: Some(p.capture),
-                format: Some(profile.format.fourcc),
-                width: profile.format.width,
-                height: profile.format.height,
+                format: Some(fourcc_str(&p.format.fourcc())),
+                width: p.width,
+                height: p.height,
                 lens: cfg
                     .lens
                     .clone()
@@ -169,6 +183,7 @@ pub fn open(cfg: &V4l2Config) -> Result<V4l2Camera, CaptureError> {
         settled_at: None,
         last_stamp: None,
         developer,
+        rotation,
     })
 }
 
@@ -220,6 +235,10 @@ impl V4l2Camera {
 impl Camera for V4l2Camera {
     fn lens_range(&self) -> (i32, i32) {
         self.lens.range
+    }
+
+    fn sensor_rotation(&self) -> i64 {
+        self.rotation
     }
 
     fn focus(&mut self, _plane: usize, position: i32) -> Result<(), CaptureError> {
@@ -287,10 +306,9 @@ impl Camera for V4l2Camera {
             let outcome = match window {
                 Err(e) => Some(Err(CaptureError::device(&label, e))),
                 Ok(Some((start, end))) if !corrupt && !stale(start, self.settled_at) => Some(
-                    format::to_rgb_planes(
+                    frame_of(
                         self.format,
-                        self.width as usize,
-                        self.height as usize,
+                        (self.width as usize, self.height as usize),
                         &stream
                             .planes(&d)
                             .into_iter()
@@ -299,8 +317,8 @@ impl Camera for V4l2Camera {
                             .collect::<Vec<_>>(),
                         &mut self.developer,
                     )
-                    .map(|image| Take {
-                        image,
+                    .map(|frame| Take {
+                        frame,
                         exposure_start: start,
                         exposure_end: end,
                     })
@@ -584,6 +602,22 @@ fn controls_of(dev: &Device) -> io::Result<Vec<ControlInfo>> {
             default: d.default,
         })
         .collect())
+}
+
+/// A frame's pixels: a raw Bayer buffer copied as it is (developed after the sweep), any other
+/// format converted to RGB now.
+fn frame_of(
+    format: PixelFormat,
+    (width, height): (usize, usize),
+    planes: &[(&[u8], usize)],
+    developer: &mut Developer,
+) -> Result<Frame, String> {
+    match (format, planes) {
+        (PixelFormat::Bayer(order, packing), &[plane]) => {
+            format::copy_raw((order, packing), (width, height), plane, developer).map(Frame::Raw)
+        }
+        _ => format::to_rgb_planes(format, width, height, planes, developer).map(Frame::Picture),
+    }
 }
 
 fn stale(exposure_start: Nanos, settled_at: Option<Nanos>) -> bool {

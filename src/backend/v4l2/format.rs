@@ -1,8 +1,8 @@
 //! Pixel formats: which to ask the driver for, and turning a buffer of one into RGB.
 
-use crate::develop::raw::{self, Packing};
+use crate::develop::raw::Packing;
 pub use crate::develop::BayerOrder;
-use crate::develop::{Developer, Mosaic};
+use crate::develop::{Developer, RawFrame, RawLayout};
 use crate::stack::image::Image;
 
 /// The formats focusd converts.
@@ -375,25 +375,35 @@ pub fn to_rgb(
             out = img.into_rgb8().into_raw();
         }
         PixelFormat::Bayer(order, packing) => {
-            if width < 2 || height < 2 {
-                return Err(format!(
-                    "{name}: frame {width}x{height} is smaller than 2x2"
-                ));
-            }
-            let samples = raw::unpack(packing, width, height, stride, bytes)
-                .map_err(|e| format!("{name}: {e}"))?;
-            let m = Mosaic::from_samples(
-                &samples,
-                width,
-                height,
-                order,
-                packing.bits(),
-                raw_dev.black_level,
-            );
+            let raw = copy_raw((order, packing), (width, height), (bytes, stride), raw_dev)?;
+            let m = raw.mosaic().map_err(|e| format!("{name}: {e}"))?;
             return Ok(raw_dev.develop(m));
         }
     }
     Ok(Image::from_vec(width, height, 3, out))
+}
+
+/// A raw Bayer frame copied from its buffer as it is, to be developed with `dev`'s black
+/// level and colour matrix; the error names the format.
+pub fn copy_raw(
+    (order, packing): (BayerOrder, Packing),
+    (width, height): (usize, usize),
+    (bytes, stride): (&[u8], usize),
+    dev: &Developer,
+) -> Result<RawFrame, String> {
+    let layout = RawLayout {
+        packing,
+        width,
+        height,
+        stride,
+        order,
+        black_level: dev.black_level,
+        matrix: dev.matrix,
+    };
+    RawFrame::copy(bytes, layout).map_err(|e| {
+        let name = fourcc_str(&PixelFormat::Bayer(order, packing).fourcc());
+        format!("{name}: {e}")
+    })
 }
 
 #[cfg(test)]

@@ -108,18 +108,31 @@ pub fn lens_candidates(root: &Path, spec: Option<&str>) -> Result<Vec<PathBuf>, 
                 })
         }
         None => {
-            let is_lens = |d: &Node| {
-                let name = d.name.to_ascii_lowercase();
-                LENS_DRIVERS.iter().any(|l| name.starts_with(l))
-            };
-            let (lenses, rest): (Vec<&Node>, Vec<&Node>) = subdevs.iter().partition(|d| is_lens(d));
+            let lenses = named_lenses(root);
             Ok(lenses
-                .into_iter()
-                .chain(rest)
-                .map(|d| d.dev.clone())
+                .iter()
+                .cloned()
+                .chain(
+                    subdevs
+                        .into_iter()
+                        .map(|d| d.dev)
+                        .filter(|d| !lenses.contains(d)),
+                )
                 .collect())
         }
     }
+}
+
+/// The sub-devices named after a known lens driver (`dw9714 3-000c`), in sysfs order.
+pub fn named_lenses(root: &Path) -> Vec<PathBuf> {
+    list_nodes(root, "v4l-subdev")
+        .into_iter()
+        .filter(|d| {
+            let name = d.name.to_ascii_lowercase();
+            LENS_DRIVERS.iter().any(|l| name.starts_with(l))
+        })
+        .map(|d| d.dev)
+        .collect()
 }
 
 /// What a control is, for picking one.

@@ -3,16 +3,19 @@
 //! capture node and the lens found through the graph. Every mismatch with the hardware is an
 //! error naming the link or pad.
 
-use super::lens::dev_dir;
-use super::profile::{mbus_code, mbus_name, LensSpec, LinkSpec, PadRef, Profile};
+use super::format::PixelFormat;
+use super::media_ops::{Kernel, MediaOps};
+use super::profile::{
+    mbus_code, mbus_name, CropName, CropSpec, LensSpec, LinkSpec, PadRef, PadSpec, Profile,
+};
+use super::sensor;
 use crate::backend::videodev::abi::{self, MbusFramefmt, Rect};
 use crate::backend::videodev::media::{self, Topology};
-use crate::backend::videodev::{subdev, Device};
 use crate::capture::CaptureError;
-use std::fs;
+use crate::develop::BayerOrder;
 use std::path::{Path, PathBuf};
 
-/// The nodes the profile's pipeline streams through, once set up.
+/// The nodes the profile's pipeline streams through, once set up, and what was chosen.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Pipeline {
     pub media: PathBuf,
@@ -20,11 +23,30 @@ pub struct Pipeline {
     pub capture: PathBuf,
     /// The lens sub-device from the graph; `None`: the graph has no lens linked to the sensor.
     pub lens: Option<PathBuf>,
+    /// The sensor's entity name in the graph.
+    pub sensor: String,
+    /// The colour order the sensor reports (after its flips).
+    pub order: BayerOrder,
+    /// The capture node's format and size.
+    pub format: PixelFormat,
+    pub width: u32,
+    pub height: u32,
+    /// `V4L2_CID_CAMERA_SENSOR_ROTATION` on the sensor, where it has it.
+    pub rotation: Option<i64>,
+    /// What was chosen and why, a line each, for the log.
+    pub notes: Vec<String>,
 }
 
 /// Sets the pipeline up as `profile` says. `sysfs_root` as in `[camera]` (device nodes beside
 /// it). A profile whose lens is `none` fails here, before anything is touched, with its reason.
 pub fn apply(profile: &Profile, sysfs_root: &Path) -> Result<Pipeline, CaptureError> {
+    apply_with(&mut Kernel::new(sysfs_root), profile)
+}
+
+/// [`apply`] through `ops`: the sensor's Bayer code at the profile's depth and the first of
+/// the profile's modes that every pad passes (a pad's size limit moves on to the next mode, a
+/// crop limit crops), then the capture node and the lens.
+pub fn apply_with(ops: &mut dyn MediaOps, profile: &Profile) -> Result<Pipeline, CaptureError> {
     let label = format!("device profile {}", profile.name);
     let fail = |e: String| CaptureError::device(&label, e);
     if let LensSpec::None { reason } = &profile.lens {
@@ -33,116 +55,301 @@ pub fn apply(profile: &Profile, sysfs_root: &Path) -> Result<Pipeline, CaptureEr
              here (`focusd fuse` still fuses stacks taken elsewhere)"
         )));
     }
-    let (media_path, dev, topo) = open_media(profile, sysfs_root).map_err(fail)?;
+    let (media_path, topo) = open_media(ops, profile).map_err(fail)?;
     for link in &profile.links {
         let (source, sink, flags) = data_link(&topo, link).map_err(fail)?;
         if flags & abi::MEDIA_LNK_FL_IMMUTABLE == 0 {
             for (other, other_sink) in rivals(&topo, source, sink) {
-                media::setup_link(&dev, other, other_sink, false).map_err(|e| {
-                    fail(format!(
-                        "link {link}: cannot disable the link from {} into the same pad: {e}",
-                        describe_pad(&topo, other)
-                    ))
-                })?;
+                ops.setup_link(&media_path, other, other_sink, false)
+                    .map_err(|e| {
+                        fail(format!(
+                            "link {link}: cannot disable the link from {} into the same pad: {e}",
+                            describe_pad(&topo, other)
+                        ))
+                    })?;
             }
-            media::setup_link(&dev, source, sink, true)
+            ops.setup_link(&media_path, source, sink, true)
                 .map_err(|e| fail(format!("link {link}: cannot enable it: {e}")))?;
         }
     }
-    for p in &profile.pads {
-        let entity = entity_id(&topo, &p.pad.0).map_err(|e| fail(format!("pad {}: {e}", p.pad)))?;
-        let node =
-            devnode(&topo, entity, sysfs_root).map_err(|e| fail(format!("pad {}: {e}", p.pad)))?;
-        let sub = Device::open(&node)
-            .map_err(|e| fail(format!("pad {}: {}: {e}", p.pad, node.display())))?;
-        let want = MbusFramefmt {
-            width: p.width,
-            height: p.height,
-            code: mbus_code(&p.code).unwrap_or_default(),
-            field: abi::FIELD_NONE,
-            ..MbusFramefmt::default()
-        };
-        let pad = u32::from(p.pad.1);
-        let got = subdev::set_format(&sub, pad, want).map_err(|e| {
-            fail(format!(
-                "pad {}: cannot set {}: {e}",
-                p.pad,
-                describe(&want)
-            ))
-        })?;
-        check_format(&p.pad, &want, &got).map_err(fail)?;
-        if let Some([left, top, width, height]) = p.crop {
-            let want = Rect {
-                left: left as i32,
-                top: top as i32,
-                width,
-                height,
-            };
-            let got = subdev::set_crop(&sub, pad, want)
-                .map_err(|e| fail(format!("pad {}: cannot crop to {want:?}: {e}", p.pad)))?;
-            if got != want {
-                return Err(fail(format!(
-                    "pad {}: asked to crop to {want:?}, the driver set {got:?}",
-                    p.pad
-                )));
+    let (sensor_id, sensor_name) = sensor_entity(&topo, profile).map_err(fail)?;
+    let sensor_node =
+        devnode(ops, &topo, sensor_id).map_err(|e| fail(format!("sensor {sensor_name:?}: {e}")))?;
+    let at_sensor = |e: String| fail(format!("sensor {sensor_name:?}: {e}"));
+    let offered = ops
+        .codes(&sensor_node, 0)
+        .map_err(|e| at_sensor(format!("cannot list its media-bus codes: {e}")))?;
+    let current = ops.format(&sensor_node, 0).ok().map(|f| f.code);
+    let code = sensor::choose_code(&offered, current, profile.mode.bits).map_err(at_sensor)?;
+    let order = sensor::bayer_of(code).map_or(BayerOrder::Rggb, |(o, _)| o);
+    let mut notes = vec![format!(
+        "sensor {sensor_name:?} reports {}{}",
+        mbus_name(code),
+        flips(ops, &sensor_node)
+    )];
+    let rotation = ops
+        .control(&sensor_node, abi::CID_CAMERA_SENSOR_ROTATION)
+        .ok()
+        .flatten();
+    if let Some(r) = rotation {
+        notes.push(format!("sensor rotation {r}"));
+    }
+    let sizes = ops
+        .sizes(&sensor_node, 0, code)
+        .map_err(|e| at_sensor(format!("cannot list its frame sizes: {e}")))?;
+    let modes = sensor::offered_modes(&profile.mode.sizes, &sizes).map_err(at_sensor)?;
+    let sensor_pad = PadRef(sensor_name.clone(), 0);
+    let mut refused = Vec::new();
+    let mut chosen = None;
+    for mode in modes {
+        match try_mode(ops, &topo, profile, (&sensor_pad, &sensor_node), code, mode) {
+            Ok((size, mut said)) => {
+                notes.push(format!("mode {}x{}", mode[0], mode[1]));
+                notes.append(&mut said);
+                chosen = Some(size);
+                break;
             }
+            Err(Refused::Mode(why)) => refused.push(format!("{}x{}: {why}", mode[0], mode[1])),
+            Err(Refused::Pipeline(e)) => return Err(fail(e)),
         }
     }
+    if !refused.is_empty() {
+        notes.push(format!(
+            "modes the pipeline refused: {}",
+            refused.join("; ")
+        ));
+    }
+    let Some([width, height]) = chosen else {
+        return Err(fail(format!(
+            "no sensor mode passes the pipeline: {}",
+            refused.join("; ")
+        )));
+    };
+    let format = match profile.capture_bits().map_err(fail)? {
+        Some(bits) => sensor::capture_format(order, bits),
+        None => PixelFormat::parse(&profile.format.fourcc)
+            .map_err(|e| fail(format!("format.fourcc: {e}")))?,
+    };
     let capture_id = entity_id(&topo, &profile.capture)
         .map_err(|e| fail(format!("capture {:?}: {e}", profile.capture)))?;
-    let capture = devnode(&topo, capture_id, sysfs_root)
+    let capture = devnode(ops, &topo, capture_id)
         .map_err(|e| fail(format!("capture {:?}: {e}", profile.capture)))?;
-    let sensor = entity_id(&topo, &profile.sensor)
-        .map_err(|e| fail(format!("sensor {:?}: {e}", profile.sensor)))?;
-    let lens = match lens_of(&topo, sensor) {
-        Some(id) => Some(devnode(&topo, id, sysfs_root).map_err(|e| fail(format!("lens: {e}")))?),
+    let lens = match lens_of(&topo, sensor_id) {
+        Some(id) => Some(devnode(ops, &topo, id).map_err(|e| fail(format!("lens: {e}")))?),
         None => None,
     };
     Ok(Pipeline {
         media: media_path,
         capture,
         lens,
+        sensor: sensor_name,
+        order,
+        format,
+        width,
+        height,
+        rotation,
+        notes,
     })
+}
+
+/// Where the graph ties no lens to the sensor, none is configured and no sub-device is named
+/// after a lens driver, the capture cannot move a lens: the error, said before any sweep,
+/// names the missing `lens-focus` link, the device-tree fix and `[camera] lens`.
+pub fn check_lens(p: &Pipeline, configured: Option<&str>, named: &[PathBuf]) -> Result<(), String> {
+    if p.lens.is_some() || configured.is_some() || !named.is_empty() {
+        return Ok(());
+    }
+    Err(format!(
+        "the media graph links no lens to the sensor {:?}: the device tree gives the sensor no \
+         `lens-focus` property, so the kernel makes no ancillary link and no lens sub-device. \
+         Fix the device tree: add `lens-focus = <&lens>;` to the sensor's node, pointing to its \
+         lens actuator (on the Librem 5, the dongwoon,dw9714 at i2c4 0x0c in \
+         imx8mq-librem5.dtsi). On a kernel that has the lens sub-device but not the link, set \
+         [camera] lens to its node (/dev/v4l-subdevN) or name",
+        p.sensor
+    ))
+}
+
+/// Why a mode was not taken: the pipeline cannot pass its size (try the next), or the
+/// hardware does not match the profile at all.
+enum Refused {
+    Mode(String),
+    Pipeline(String),
+}
+
+/// Sets the sensor to `mode` and every profile pad after it; the size that reaches the
+/// capture node, and what was cropped.
+fn try_mode(
+    ops: &mut dyn MediaOps,
+    topo: &Topology,
+    profile: &Profile,
+    (sensor_pad, sensor_node): (&PadRef, &Path),
+    code: u32,
+    mode: [u32; 2],
+) -> Result<([u32; 2], Vec<String>), Refused> {
+    let order = sensor::bayer_of(code).map_or(BayerOrder::Rggb, |(o, _)| o);
+    let want = framefmt(code, mode);
+    let got = ops.set_format(sensor_node, 0, want).map_err(|e| {
+        Refused::Pipeline(format!(
+            "pad {sensor_pad}: cannot set {}: {e}",
+            describe(&want)
+        ))
+    })?;
+    check_pad(sensor_pad, &want, &got)?;
+    let mut size = mode;
+    let mut notes = Vec::new();
+    for p in &profile.pads {
+        let at = |e: String| Refused::Pipeline(format!("pad {}: {e}", p.pad));
+        let entity = entity_id(topo, &p.pad.0).map_err(at)?;
+        let node = devnode(ops, topo, entity).map_err(at)?;
+        let code = pad_code(p, order).map_err(at)?;
+        let want = framefmt(
+            code,
+            [p.width.unwrap_or(size[0]), p.height.unwrap_or(size[1])],
+        );
+        let pad = u32::from(p.pad.1);
+        let got = ops
+            .set_format(&node, pad, want)
+            .map_err(|e| at(format!("cannot set {}: {e}", describe(&want))))?;
+        check_pad(&p.pad, &want, &got)?;
+        size = [want.width, want.height];
+        let Some(crop) = &p.crop else { continue };
+        let full = Rect {
+            left: 0,
+            top: 0,
+            width: size[0],
+            height: size[1],
+        };
+        let asked = match crop {
+            CropSpec::Rect([left, top, width, height]) => Rect {
+                left: *left as i32,
+                top: *top as i32,
+                width: *width,
+                height: *height,
+            },
+            CropSpec::Named(CropName::Limit) => full,
+        };
+        let got = ops
+            .set_crop(&node, pad, asked)
+            .map_err(|e| at(format!("cannot crop to {asked:?}: {e}")))?;
+        let got = match crop {
+            CropSpec::Named(CropName::Limit) if got != asked => {
+                // The driver's processing limit: the same size, centred on even offsets.
+                let centred = Rect {
+                    left: (((size[0] - got.width.min(size[0])) / 2) & !1) as i32,
+                    top: (((size[1] - got.height.min(size[1])) / 2) & !1) as i32,
+                    ..got
+                };
+                let again = ops
+                    .set_crop(&node, pad, centred)
+                    .map_err(|e| at(format!("cannot crop to {centred:?}: {e}")))?;
+                notes.push(format!(
+                    "pad {} crops {}x{} to {}x{} at ({}, {}), its limit",
+                    p.pad, size[0], size[1], again.width, again.height, again.left, again.top
+                ));
+                (again == centred).then_some(again).ok_or_else(|| {
+                    at(format!(
+                        "asked to crop to {centred:?}, the driver set {again:?}"
+                    ))
+                })?
+            }
+            _ if got != asked => {
+                return Err(at(format!(
+                    "asked to crop to {asked:?}, the driver set {got:?}"
+                )))
+            }
+            _ => got,
+        };
+        size = [got.width, got.height];
+    }
+    Ok((size, notes))
+}
+
+/// A pad's code: the sensor's order at the token's depth, or the named code.
+fn pad_code(p: &PadSpec, order: BayerOrder) -> Result<u32, String> {
+    match sensor::depth_token(&p.code) {
+        Some(bits) => sensor::bayer_code(order, bits)
+            .ok_or_else(|| format!("no {bits}-bit code for {order:?}")),
+        None => mbus_code(&p.code).ok_or_else(|| format!("unknown code {:?}", p.code)),
+    }
+}
+
+fn framefmt(code: u32, [width, height]: [u32; 2]) -> MbusFramefmt {
+    MbusFramefmt {
+        width,
+        height,
+        code,
+        field: abi::FIELD_NONE,
+        ..MbusFramefmt::default()
+    }
+}
+
+/// A pad whose format came back with another code does not match the profile; one that came
+/// back smaller cannot pass this mode.
+fn check_pad(pad: &PadRef, want: &MbusFramefmt, got: &MbusFramefmt) -> Result<(), Refused> {
+    match check_format(pad, want, got) {
+        Ok(()) => Ok(()),
+        Err(e) if got.code == want.code => Err(Refused::Mode(e)),
+        Err(e) => Err(Refused::Pipeline(e)),
+    }
+}
+
+/// The sensor's flips, where it has the controls, for the log: the imx258 ties its order to
+/// them.
+fn flips(ops: &mut dyn MediaOps, node: &Path) -> String {
+    let h = ops.control(node, abi::CID_HFLIP).ok().flatten();
+    let v = ops.control(node, abi::CID_VFLIP).ok().flatten();
+    match (h, v) {
+        (None, None) => String::new(),
+        (h, v) => {
+            let say = |c: Option<i64>| c.map_or("none".to_string(), |v| v.to_string());
+            format!(" (hflip {}, vflip {})", say(h), say(v))
+        }
+    }
+}
+
+/// The sensor's entity: the first of the profile's names the graph has, and its name there.
+fn sensor_entity(topo: &Topology, profile: &Profile) -> Result<(u32, String), String> {
+    let mut errors = Vec::new();
+    for name in profile.sensor.all() {
+        match entity_id(topo, name) {
+            Ok(id) => {
+                let full = topo
+                    .entities
+                    .iter()
+                    .find(|e| e.id == id)
+                    .map_or_else(|| name.clone(), |e| e.name.clone());
+                return Ok((id, full));
+            }
+            Err(e) => errors.push(e),
+        }
+    }
+    Err(format!("sensor {}: {}", profile.sensor, errors.join("; ")))
 }
 
 /// The media device whose model is the profile's and whose graph holds its sensor (a phone may
 /// have one media device per ISP or bridge, all with the same model), with its graph.
-fn open_media(profile: &Profile, sysfs_root: &Path) -> Result<(PathBuf, Device, Topology), String> {
+fn open_media(ops: &mut dyn MediaOps, profile: &Profile) -> Result<(PathBuf, Topology), String> {
     let model = &profile.media_model;
-    let dir = dev_dir(sysfs_root);
-    let mut paths: Vec<PathBuf> = fs::read_dir(&dir)
-        .map(|d| {
-            d.flatten()
-                .filter(|e| e.file_name().to_string_lossy().starts_with("media"))
-                .map(|e| e.path())
-                .collect()
-        })
-        .unwrap_or_default();
-    paths.sort();
     let mut found = Vec::new();
-    for path in paths {
-        let info = Device::open(&path).and_then(|d| media::info(&d).map(|i| (d, i)));
-        match info {
-            Ok((dev, info)) if info.model == *model => match media::topology(&dev) {
-                Ok(topo) => match entity_id(&topo, &profile.sensor) {
-                    Ok(_) => return Ok((path, dev, topo)),
-                    Err(e) => found.push(format!(
-                        "{} ({model:?}, but sensor {:?}: {e})",
-                        path.display(),
-                        profile.sensor
-                    )),
+    for path in ops.media_nodes() {
+        match ops.info(&path) {
+            Ok(info) if info.model == *model => match ops.topology(&path) {
+                Ok(topo) => match sensor_entity(&topo, profile) {
+                    Ok(_) => return Ok((path, topo)),
+                    Err(e) => found.push(format!("{} ({model:?}, but {e})", path.display())),
                 },
                 Err(e) => found.push(format!(
                     "{} ({model:?}, cannot read its graph: {e})",
                     path.display()
                 )),
             },
-            Ok((_, info)) => found.push(format!("{} ({:?})", path.display(), info.model)),
+            Ok(info) => found.push(format!("{} ({:?})", path.display(), info.model)),
             Err(e) => found.push(format!("{}: {e}", path.display())),
         }
     }
     Err(format!(
-        "no media device has the model {model:?} and the sensor {:?} (is the camera driver \
+        "no media device has the model {model:?} and the sensor {} (is the camera driver \
          loaded, is this the right profile?); found: {}",
         profile.sensor,
         if found.is_empty() {
@@ -255,8 +462,8 @@ fn describe_pad(topo: &Topology, (entity, pad): (u32, u16)) -> String {
     PadRef(name, pad).to_string()
 }
 
-/// The device node of an entity, through its interface link and sysfs's char-device table.
-fn devnode(topo: &Topology, entity: u32, sysfs_root: &Path) -> Result<PathBuf, String> {
+/// The device node of an entity, through its interface link.
+fn devnode(ops: &mut dyn MediaOps, topo: &Topology, entity: u32) -> Result<PathBuf, String> {
     let intf = topo
         .links
         .iter()
@@ -264,13 +471,7 @@ fn devnode(topo: &Topology, entity: u32, sysfs_root: &Path) -> Result<PathBuf, S
         .filter(|l| l.sink == entity)
         .find_map(|l| topo.interfaces.iter().find(|i| i.id == l.source))
         .ok_or_else(|| "it has no device node".to_string())?;
-    let uevent = sysfs_root.join(format!("dev/char/{}:{}/uevent", intf.major, intf.minor));
-    let text = fs::read_to_string(&uevent).map_err(|e| format!("{}: {e}", uevent.display()))?;
-    let name = text
-        .lines()
-        .find_map(|l| l.strip_prefix("DEVNAME="))
-        .ok_or_else(|| format!("{} has no DEVNAME", uevent.display()))?;
-    Ok(dev_dir(sysfs_root).join(name))
+    ops.devnode(intf.major, intf.minor)
 }
 
 /// The lens entity tied to `sensor` by an ancillary link (either direction).
@@ -466,18 +667,22 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let root = dir.path().join("sys");
         let char_dir = root.join("dev/char/81:6");
-        fs::create_dir_all(&char_dir).expect("mkdir");
-        fs::write(
+        std::fs::create_dir_all(&char_dir).expect("mkdir");
+        std::fs::write(
             char_dir.join("uevent"),
             "MAJOR=81\nMINOR=6\nDEVNAME=v4l-subdev6\n",
         )
         .expect("w");
         let t = graph();
+        let mut kernel = Kernel::new(&root);
         assert_eq!(
-            devnode(&t, 28, &root),
+            devnode(&mut kernel, &t, 28),
             Ok(dir.path().join("dev/v4l-subdev6"))
         );
-        assert_eq!(devnode(&t, 1, &root), Err("it has no device node".into()));
+        assert_eq!(
+            devnode(&mut kernel, &t, 1),
+            Err("it has no device node".into())
+        );
     }
 
     #[test]
@@ -523,7 +728,8 @@ mod tests {
     fn no_media_device_lists_what_was_found() {
         let dir = tempfile::tempdir().expect("tempdir");
         let vimc = Profile::load("vimc").expect("vimc");
-        let e = open_media(&vimc, &dir.path().join("sys")).expect_err("none");
+        let mut kernel = Kernel::new(&dir.path().join("sys"));
+        let e = open_media(&mut kernel, &vimc).expect_err("none");
         assert!(
             e.contains("no media device has the model \"VIMC MDEV\" and the sensor \"Sensor A\"")
                 && e.ends_with("none"),

@@ -55,6 +55,10 @@ pub const CTRL_TYPE_INTEGER64: u32 = 5;
 pub const CTRL_TYPE_CTRL_CLASS: u32 = 6;
 pub const CID_EXPOSURE: u32 = 0x0098_0911;
 pub const CID_EXPOSURE_ABSOLUTE: u32 = 0x009a_0902;
+pub const CID_HFLIP: u32 = 0x0098_0914;
+pub const CID_VFLIP: u32 = 0x0098_0915;
+/// The counter-clockwise turn that makes the sensor's pictures upright (the DT `rotation`).
+pub const CID_CAMERA_SENSOR_ROTATION: u32 = 0x009a_0923;
 pub const CID_FOCUS_ABSOLUTE: u32 = 0x009a_090a;
 pub const CID_FOCUS_RELATIVE: u32 = 0x009a_090b;
 pub const CID_FOCUS_AUTO: u32 = 0x009a_090c;
@@ -385,6 +389,33 @@ pub struct SubdevFormat {
     pub reserved: [u32; 8],
 }
 
+/// `struct v4l2_subdev_mbus_code_enum` (6.1; later kernels name `reserved[0]` `stream`).
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct SubdevMbusCodeEnum {
+    pub pad: u32,
+    pub index: u32,
+    pub code: u32,
+    pub which: u32,
+    pub flags: u32,
+    pub reserved: [u32; 7],
+}
+
+/// `struct v4l2_subdev_frame_size_enum` (6.1; later kernels name `reserved[0]` `stream`).
+#[repr(C)]
+#[derive(Clone, Copy)]
+pub struct SubdevFrameSizeEnum {
+    pub index: u32,
+    pub pad: u32,
+    pub code: u32,
+    pub min_width: u32,
+    pub max_width: u32,
+    pub min_height: u32,
+    pub max_height: u32,
+    pub which: u32,
+    pub reserved: [u32; 8],
+}
+
 /// `struct v4l2_rect`
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -522,6 +553,9 @@ pub const VIDIOC_S_PARM: Opcode = opcode::read_write::<StreamParm>(b'V', 22);
 pub const VIDIOC_G_EXT_CTRLS: Opcode = opcode::read_write::<ExtControls>(b'V', 71);
 pub const VIDIOC_S_EXT_CTRLS: Opcode = opcode::read_write::<ExtControls>(b'V', 72);
 pub const VIDIOC_QUERY_EXT_CTRL: Opcode = opcode::read_write::<QueryExtCtrl>(b'V', 103);
+pub const VIDIOC_SUBDEV_ENUM_MBUS_CODE: Opcode = opcode::read_write::<SubdevMbusCodeEnum>(b'V', 2);
+pub const VIDIOC_SUBDEV_ENUM_FRAME_SIZE: Opcode =
+    opcode::read_write::<SubdevFrameSizeEnum>(b'V', 74);
 pub const VIDIOC_SUBDEV_G_FMT: Opcode = opcode::read_write::<SubdevFormat>(b'V', 4);
 pub const VIDIOC_SUBDEV_S_FMT: Opcode = opcode::read_write::<SubdevFormat>(b'V', 5);
 pub const VIDIOC_SUBDEV_G_SELECTION: Opcode = opcode::read_write::<SubdevSelection>(b'V', 61);
@@ -572,6 +606,8 @@ zeroable!(
     ExtControl,
     ExtControls,
     SubdevFormat,
+    SubdevMbusCodeEnum,
+    SubdevFrameSizeEnum,
     SubdevSelection,
     MediaDeviceInfo,
     MediaV2Topology,
@@ -710,6 +746,20 @@ pub(crate) mod tests {
             "pad" = pad,
             "format" = format
         );
+        layout!(
+            "v4l2_subdev_mbus_code_enum",
+            SubdevMbusCodeEnum,
+            "code" = code,
+            "which" = which,
+            "flags" = flags
+        );
+        layout!(
+            "v4l2_subdev_frame_size_enum",
+            SubdevFrameSizeEnum,
+            "code" = code,
+            "max_height" = max_height,
+            "which" = which
+        );
         layout!("v4l2_rect", Rect, "width" = width);
         layout!("v4l2_subdev_selection", SubdevSelection, "r" = r);
         layout!(
@@ -811,6 +861,9 @@ pub(crate) mod tests {
             "V4L2_CID_EXPOSURE" = CID_EXPOSURE,
             "V4L2_CID_EXPOSURE_ABSOLUTE" = CID_EXPOSURE_ABSOLUTE,
             "V4L2_CID_FOCUS_ABSOLUTE" = CID_FOCUS_ABSOLUTE,
+            "V4L2_CID_HFLIP" = CID_HFLIP,
+            "V4L2_CID_VFLIP" = CID_VFLIP,
+            "V4L2_CID_CAMERA_SENSOR_ROTATION" = CID_CAMERA_SENSOR_ROTATION,
             "V4L2_CID_FOCUS_RELATIVE" = CID_FOCUS_RELATIVE,
             "V4L2_CID_FOCUS_AUTO" = CID_FOCUS_AUTO,
             "V4L2_CID_AUTO_FOCUS_START" = CID_AUTO_FOCUS_START,
@@ -849,6 +902,8 @@ pub(crate) mod tests {
             "VIDIOC_G_EXT_CTRLS" = VIDIOC_G_EXT_CTRLS,
             "VIDIOC_S_EXT_CTRLS" = VIDIOC_S_EXT_CTRLS,
             "VIDIOC_QUERY_EXT_CTRL" = VIDIOC_QUERY_EXT_CTRL,
+            "VIDIOC_SUBDEV_ENUM_MBUS_CODE" = VIDIOC_SUBDEV_ENUM_MBUS_CODE,
+            "VIDIOC_SUBDEV_ENUM_FRAME_SIZE" = VIDIOC_SUBDEV_ENUM_FRAME_SIZE,
             "VIDIOC_SUBDEV_G_FMT" = VIDIOC_SUBDEV_G_FMT,
             "VIDIOC_SUBDEV_S_FMT" = VIDIOC_SUBDEV_S_FMT,
             "VIDIOC_SUBDEV_G_SELECTION" = VIDIOC_SUBDEV_G_SELECTION,

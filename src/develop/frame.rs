@@ -1,0 +1,170 @@
+//! A raw take kept as it came: the frame buffer's bytes with their packing and stride, the
+//! Bayer order and the black level, and the colour matrix to develop it with. A sweep only
+//! copies these; developing them waits until the lens is done ([`StackDeveloper`]).
+
+use super::raw::{self, Packing};
+use super::{BayerOrder, Developer, Mosaic};
+use crate::stack::image::Image;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawFrame {
+    /// The buffer as the driver wrote it, up to the frame's last sample.
+    pub bytes: Vec<u8>,
+    pub packing: Packing,
+    /// Bytes a row in `bytes`.
+    pub stride: usize,
+    pub width: usize,
+    pub height: usize,
+    pub order: BayerOrder,
+    /// The pedestal in sample values at the packing's depth.
+    pub black_level: u32,
+    /// Camera RGB (balanced) to linear sRGB, row by row.
+    pub matrix: [[f32; 3]; 3],
+}
+
+/// How a raw frame sits in its buffer and what develops it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RawLayout {
+    pub packing: Packing,
+    pub width: usize,
+    pub height: usize,
+    /// The driver's bytes per line (0: rows unpadded).
+    pub stride: usize,
+    pub order: BayerOrder,
+    pub black_level: u32,
+    pub matrix: [[f32; 3]; 3],
+}
+
+impl RawFrame {
+    /// A copy of the frame in `buffer`, after checking the buffer holds it (the error names
+    /// the geometry and the sizes).
+    pub fn copy(buffer: &[u8], l: RawLayout) -> Result<RawFrame, String> {
+        if l.width < 2 || l.height < 2 {
+            return Err(format!(
+                "frame {}x{} is smaller than 2x2",
+                l.width, l.height
+            ));
+        }
+        let (stride, needed) = raw::layout(l.packing, l.width, l.height, l.stride, buffer.len())?;
+        Ok(RawFrame {
+            bytes: buffer[..needed].to_vec(),
+            packing: l.packing,
+            stride,
+            width: l.width,
+            height: l.height,
+            order: l.order,
+            black_level: l.black_level,
+            matrix: l.matrix,
+        })
+    }
+
+    /// Bits a sample.
+    pub fn bits(&self) -> u32 {
+        self.packing.bits()
+    }
+
+    /// The samples in linear light, black level off.
+    pub fn mosaic(&self) -> Result<Mosaic, String> {
+        let samples = raw::unpack(
+            self.packing,
+            self.width,
+            self.height,
+            self.stride,
+            &self.bytes,
+        )?;
+        Ok(Mosaic::from_samples(
+            &samples,
+            self.width,
+            self.height,
+            self.order,
+            self.bits(),
+            self.black_level,
+        ))
+    }
+}
+
+/// Develops the raw frames of one stack: the white balance measured on the first and kept
+/// for the rest, so the planes' colours match.
+#[derive(Default)]
+pub struct StackDeveloper {
+    developer: Option<Developer>,
+}
+
+impl StackDeveloper {
+    pub fn develop(&mut self, raw: &RawFrame) -> Result<Image<u8>, String> {
+        let dev = self
+            .developer
+            .get_or_insert_with(|| Developer::new(raw.black_level, raw.matrix));
+        Ok(dev.develop(raw.mosaic()?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::develop::IDENTITY;
+
+    fn layout(width: usize, height: usize, stride: usize) -> RawLayout {
+        RawLayout {
+            packing: Packing::Bits8,
+            width,
+            height,
+            stride,
+            order: BayerOrder::Grbg,
+            black_level: 16,
+            matrix: IDENTITY,
+        }
+    }
+
+    #[test]
+    fn a_copy_keeps_the_frame_and_drops_the_buffers_tail() {
+        // Two rows of 4 samples at a stride of 6, then padding the driver left.
+        let buffer = [1, 2, 3, 4, 0, 0, 5, 6, 7, 8, 9, 9, 9];
+        let f = RawFrame::copy(&buffer, layout(4, 2, 6)).expect("fits");
+        assert_eq!(f.bytes, &buffer[..10]);
+        assert_eq!((f.stride, f.bits(), f.order), (6, 8, BayerOrder::Grbg));
+        let m = f.mosaic().expect("unpacks");
+        assert_eq!(m.data.len(), 8);
+        assert!(m.data[0] < 0.0, "1 is below the black level of 16");
+        let e = RawFrame::copy(&buffer[..9], layout(4, 2, 6)).expect_err("short");
+        assert_eq!(e, "4x2 frame: buffer of 9 bytes is too short, 10 needed");
+        let e = RawFrame::copy(&buffer, layout(1, 2, 0)).expect_err("tiny");
+        assert_eq!(e, "frame 1x2 is smaller than 2x2");
+    }
+
+    #[test]
+    fn a_stack_keeps_the_first_frames_white_balance() {
+        // A grey frame, then a reddish one: the second keeps the grey frame's gains (1), so
+        // it develops reddish rather than balanced back to grey.
+        let grey = vec![100u8; 16];
+        let red: Vec<u8> = (0..16)
+            .map(|i| {
+                if (i / 4) % 2 == 0 && i % 2 == 1 {
+                    200
+                } else {
+                    100
+                }
+            })
+            .collect();
+        let mut s = StackDeveloper::default();
+        let l = layout(4, 4, 0);
+        let a = s
+            .develop(&RawFrame::copy(&grey, l).expect("g"))
+            .expect("dev");
+        let b = s
+            .develop(&RawFrame::copy(&red, l).expect("r"))
+            .expect("dev");
+        let mean = |img: &Image<u8>, c: usize| {
+            img.data().chunks(3).map(|p| f64::from(p[c])).sum::<f64>() / 16.0
+        };
+        assert!((mean(&a, 0) - mean(&a, 1)).abs() < 1.0);
+        assert!(mean(&b, 0) > mean(&b, 1) + 10.0, "red kept");
+        let alone = StackDeveloper::default()
+            .develop(&RawFrame::copy(&red, l).expect("r"))
+            .expect("dev");
+        assert!(
+            (mean(&alone, 0) - mean(&alone, 1)).abs() < 2.0,
+            "balanced alone"
+        );
+    }
+}
