@@ -5,6 +5,7 @@
 //! sweep-and-reshoot logic the phone runs.
 
 pub mod gate;
+pub mod preview;
 pub mod record;
 pub mod sweep;
 pub mod trigger;
