@@ -8,7 +8,7 @@
 
 use image::imageops::FilterType;
 use image::{GrayImage, RgbImage};
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -16,12 +16,18 @@ use std::time::{Duration, Instant};
 const WIDTH: u32 = 360;
 const HEIGHT: u32 = 720;
 
-/// Children killed on drop, last started first.
+/// Children killed on drop, last started first; their logs are printed if the test failed.
 #[derive(Default)]
-struct Children(Vec<Child>);
+struct Children(Vec<Child>, Vec<PathBuf>);
 
 impl Drop for Children {
     fn drop(&mut self) {
+        if std::thread::panicking() {
+            for log in &self.1 {
+                let text = std::fs::read_to_string(log).unwrap_or_default();
+                eprintln!("--- {}:\n{text}", log.display());
+            }
+        }
         for c in self.0.iter_mut().rev() {
             let _ = c.kill();
             let _ = c.wait();
@@ -213,6 +219,7 @@ fn the_preview_shows_the_reference_frame_and_the_shutter_takes_a_stack() {
             .spawn()
             .unwrap(),
     );
+    children.1.push(log.clone());
     let serve_log = || std::fs::read_to_string(&log).unwrap_or_default();
     until("the daemon serving", Duration::from_secs(30), || {
         serve_log().contains("serving").then_some(())
@@ -235,13 +242,7 @@ fn the_preview_shows_the_reference_frame_and_the_shutter_takes_a_stack() {
             .spawn()
             .unwrap(),
     );
-    let logs = || {
-        format!(
-            "app:\n{}\nserve:\n{}",
-            std::fs::read_to_string(&app_log).unwrap_or_default(),
-            serve_log()
-        )
-    };
+    children.1.push(app_log.clone());
     let window = until("the window", Duration::from_secs(30), || {
         let o = Command::new("xdotool")
             .args(["search", "--onlyvisible", "--name", "^Viewfinder$"])
@@ -341,10 +342,6 @@ fn the_preview_shows_the_reference_frame_and_the_shutter_takes_a_stack() {
         (r >= 0.8).then_some((shot, r))
     });
     eprintln!("thumbnail against the picture: correlation {r:.3}");
-    let mut text = String::new();
-    std::fs::File::open(&app_log)
-        .unwrap()
-        .read_to_string(&mut text)
-        .unwrap();
-    assert!(!text.contains("CRITICAL"), "{}", logs());
+    let text = std::fs::read_to_string(&app_log).unwrap();
+    assert!(!text.contains("CRITICAL"), "GTK criticals: {text}");
 }
