@@ -195,6 +195,7 @@ fn the_preview_shows_the_reference_frame_and_the_shutter_takes_a_stack() {
             "--address=unix:tmpdir=/tmp",
         ])
         .stdout(Stdio::piped())
+        .stderr(Stdio::null())
         .spawn()
         .unwrap();
     let mut address = String::new();
