@@ -386,8 +386,8 @@ fn the_person_holding_the_phone_is_told_to_hold_still_and_when_it_is_done() {
         assert_eq!(
             seen,
             [
-                "feedback org.focusd.Focusd camera-focus -1".to_string(),
-                "feedback org.focusd.Focusd camera-shutter -1".to_string(),
+                "feedback org.focusd.Viewfinder camera-focus -1".to_string(),
+                "feedback org.focusd.Viewfinder camera-shutter -1".to_string(),
                 format!("notify focusd Focus stack saved | {path} | file://{path}"),
             ]
         );
@@ -412,8 +412,8 @@ fn a_failed_capture_gives_the_failure_feedback_and_says_why() {
         assert_eq!(
             seen,
             [
-                "feedback org.focusd.Focusd camera-focus -1".to_string(),
-                "feedback org.focusd.Focusd phone-failure -1".to_string(),
+                "feedback org.focusd.Viewfinder camera-focus -1".to_string(),
+                "feedback org.focusd.Viewfinder phone-failure -1".to_string(),
                 format!("notify focusd Focus stack failed | {error} | "),
             ]
         );

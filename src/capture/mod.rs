@@ -6,6 +6,7 @@
 
 pub mod gate;
 pub mod hold;
+pub mod preview;
 pub mod record;
 pub mod sweep;
 pub mod trigger;

@@ -85,19 +85,28 @@ pub struct ServiceConfig {
     /// reports it as stalled and exits for systemd to restart it. Below the unit's
     /// `WatchdogSec=30s`, so focusd reports the stall before systemd kills it.
     pub stall_timeout_s: u64,
+    /// Seconds the live preview runs after a client's last `StartPreview`, so one that
+    /// forgets to stop it does not keep the camera open.
+    pub preview_timeout_s: u64,
 }
 
 impl Default for ServiceConfig {
     fn default() -> Self {
         Self {
             stall_timeout_s: 20,
+            preview_timeout_s: 120,
         }
     }
 }
 
 impl ServiceConfig {
     pub fn validate(&self) -> Result<(), Invalid> {
-        Bounds::new(1, 3600).check("stall_timeout_s", self.stall_timeout_s)
+        Bounds::new(1, 3600).check("stall_timeout_s", self.stall_timeout_s)?;
+        Bounds::new(1, 3600).check("preview_timeout_s", self.preview_timeout_s)
+    }
+
+    pub fn preview_timeout(&self) -> std::time::Duration {
+        std::time::Duration::from_secs(self.preview_timeout_s)
     }
 
     pub fn stall_timeout(&self) -> std::time::Duration {

@@ -28,8 +28,8 @@ const CALL_TIMEOUT: Duration = Duration::from_secs(5);
 type Call = Pin<Box<dyn Future<Output = ()> + Send>>;
 
 /// The app id feedbackd keys per-application settings on, and the notification's desktop entry:
-/// the launcher is `org.focusd.Focusd.desktop`.
-pub const APP_ID: &str = "org.focusd.Focusd";
+/// the launcher is the viewfinder app's, `org.focusd.Viewfinder.desktop`.
+pub const APP_ID: &str = "org.focusd.Viewfinder";
 
 /// Feedback events, named by feedbackd's Event naming spec; the stock theme gives each a sound.
 #[derive(Clone, Copy, Debug, PartialEq)]

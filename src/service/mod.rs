@@ -8,6 +8,7 @@ pub mod fuse_settings;
 pub mod job;
 pub mod output_dir;
 pub mod pictures;
+pub mod preview;
 pub mod proxy;
 pub mod watchdog;
 

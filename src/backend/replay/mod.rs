@@ -6,6 +6,7 @@
 
 pub mod bundle;
 pub mod faults;
+pub mod preview;
 
 use crate::capture::{Camera, CaptureError, Clock, Frame, Imu, ImuSample, Nanos, Take};
 pub use bundle::{Bundle, BundleError, BundleWriteError, BundleWriter};

@@ -4,6 +4,8 @@
 use super::access::{cancel, start, Owner};
 use super::callers::Callers;
 use super::state::Shared;
+use crate::base::clip;
+use crate::service::preview::Preview;
 use std::sync::Arc;
 use zbus::message::Header;
 use zbus::object_server::SignalEmitter;
@@ -25,11 +27,14 @@ pub enum FocusdError {
     InvalidArgs(String),
     /// `Cancel` of a job another user started.
     AccessDenied(String),
+    /// The preview cannot start (no camera, the camera busy, a bad bundle).
+    Preview(String),
 }
 
 pub struct Focusd {
     pub(super) shared: Arc<Shared>,
     pub(super) callers: Callers,
+    pub(super) preview: Arc<Preview>,
 }
 
 /// `proxy` also generates the client side, `Focusd1Proxy` and its signal streams, from these
@@ -69,6 +74,46 @@ impl Focusd {
     ) -> Result<(), FocusdError> {
         let caller = self.callers.uid(&header).await?;
         cancel(&self.shared, job, caller)
+    }
+
+    /// Starts the live preview for the caller, or renews it, and returns the shared memory
+    /// its frames are written to (docs/guide.md, "The live preview"). It runs until the caller
+    /// calls `StopPreview` or leaves the bus, or `[service] preview_timeout_s` after the
+    /// caller's last `StartPreview`; a capture pauses it.
+    async fn start_preview(
+        &self,
+        #[zbus(header)] header: Header<'_>,
+    ) -> Result<zbus::OwnedFd, FocusdError> {
+        let got = header.signature().to_string();
+        if !got.is_empty() {
+            return Err(FocusdError::InvalidArgs(format!(
+                "StartPreview takes no arguments, got signature {got:?}"
+            )));
+        }
+        let client = header
+            .sender()
+            .ok_or_else(|| FocusdError::AccessDenied("the call names no sender".into()))?;
+        let timeout = self.shared.lock().config.service.preview_timeout();
+        let fd = self
+            .preview
+            .start(client.as_str(), timeout)
+            .await
+            .map_err(|e| FocusdError::Preview(clip::chain(&e)))?;
+        Ok(fd.into())
+    }
+
+    /// Ends the caller's preview; the last client's ends it for all.
+    async fn stop_preview(&self, #[zbus(header)] header: Header<'_>) -> Result<(), FocusdError> {
+        let client = header
+            .sender()
+            .ok_or_else(|| FocusdError::AccessDenied("the call names no sender".into()))?;
+        if self.preview.leave(client.as_str(), "stopped it") {
+            Ok(())
+        } else {
+            Err(FocusdError::InvalidArgs(format!(
+                "{client} has no preview to stop"
+            )))
+        }
     }
 
     /// `idle`, `waiting-still`, `sweeping`, `registering` or `fusing`.

@@ -12,6 +12,7 @@ use crate::base::clip;
 use crate::service::config::Config;
 use crate::service::feedback::Desk;
 use crate::service::job::Source;
+use crate::service::preview::{self, Preview};
 use crate::service::watchdog::Heartbeat;
 use crate::service::ServiceError;
 use crate::service::{output_dir, pictures};
@@ -96,9 +97,17 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
                 error,
             })
     };
+    let preview = Arc::new(Preview::new({
+        let shared = shared.clone();
+        move || {
+            let config = shared.lock().config.clone();
+            preview::open_source(&config, &shared.source)
+        }
+    }));
     let service = Focusd {
         shared: shared.clone(),
         callers: Callers::new(connect(opts.bus.builder()?).await?),
+        preview: preview.clone(),
     };
     let conn = opts
         .bus
@@ -115,11 +124,13 @@ pub(super) async fn run(opts: ServeOptions, config: Config, source: Source) -> R
         .object_server()
         .interface::<_, Focusd>(OBJECT_PATH)
         .await?;
+    tokio::spawn(preview::watch(preview.clone(), conn.clone()));
     let worker = {
         let shared = shared.clone();
+        let preview = preview.clone();
         std::thread::Builder::new()
             .name("focusd-job".into())
-            .spawn(move || worker(shared, inbox, events))
+            .spawn(move || worker(shared, inbox, events, preview))
             .map_err(|e| ServiceError::Start("job thread", e))?
     };
     let mut gestures = watch_keys(&shared.lock().config.trigger)?;

@@ -8,6 +8,7 @@ use crate::capture::sweep::Monitor;
 use crate::capture::Stage;
 use crate::service::config::Config;
 use crate::service::job::{self, Rig, Source};
+use crate::service::preview::Preview;
 use crate::service::ServiceError;
 use crate::stack::Progress;
 use std::panic::AssertUnwindSafe;
@@ -143,6 +144,7 @@ pub(super) fn worker(
     shared: Arc<Shared>,
     requests: crossbeam_channel::Receiver<Request>,
     events: UnboundedSender<Event>,
+    preview: Arc<Preview>,
 ) {
     for r in requests {
         let reporter = Reporter {
@@ -162,6 +164,8 @@ pub(super) fn worker(
             },
             Source::Device => Source::Device,
         };
+        // The live preview pauses while the job has the camera.
+        let hold = preview.hold_camera();
         // A bug that panics fails the job, not the service: the worker would be gone and the
         // service busy for good. Unwinding drops the rig, which releases the camera.
         let result = std::panic::catch_unwind(AssertUnwindSafe(|| {
@@ -187,6 +191,7 @@ pub(super) fn worker(
                 .unwrap_or_default();
             Err(ServiceError::Panicked(what))
         });
+        drop(hold);
         // Idle before the signal, so a client may start the next job as soon as it hears.
         let event = {
             let mut s = shared.lock();
