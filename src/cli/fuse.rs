@@ -7,8 +7,8 @@ use focusd::files::outputs::Outputs;
 use focusd::files::FileError;
 use focusd::service::fuse_settings::FuseSettings;
 use focusd::stack::{
-    fuse, memory_plan, mib, tenengrad, Alignment, FrameTransform, FuseError, FuseParams, Image,
-    Placement, RegisterError, Sample, StackShape, Transforms,
+    fuse, memory_plan, mib, tenengrad, Alignment, FieldExtent, FrameTransform, FuseError,
+    FuseParams, Image, Placement, RegisterError, Sample, StackShape, Transforms,
 };
 use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
 use rayon::prelude::*;
@@ -248,9 +248,11 @@ fn run_typed<T: Sample>(
                 .frames
                 .iter()
                 .zip(&al.registration.ref_to_frame)
-                .map(|(p, &ref_to_frame)| FrameTransform {
+                .zip(&al.registration.field)
+                .map(|((p, &ref_to_frame), field)| FrameTransform {
                     file: p.display().to_string(),
                     ref_to_frame,
+                    local_field: field.as_ref().map(FieldExtent::of),
                 })
                 .collect(),
         };

@@ -8,13 +8,16 @@
 use anyhow::{bail, Context, Result};
 use focusd::backend::replay::BundleWriter;
 use focusd::files::imageio::encode;
+use focusd::files::imageio::load_rgb8;
 use focusd::files::outputs::{save_image, write_atomic};
 use focusd::sim::bundle::{self, Shake};
-use focusd::sim::{self, FrameInfo, SimParams};
+use focusd::sim::texture::Photo;
+use focusd::sim::{self, FrameInfo, SceneKind, SimParams};
 use focusd::stack::{FrameTransform, Image, Transforms};
 use serde::Serialize;
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Render a synthetic focus stack with ground truth (frames, truth, depth, transforms).
 #[derive(clap::Args, Debug)]
@@ -84,6 +87,20 @@ pub struct SimulateArgs {
     /// Mix layers and blur in linear light, encoding sRGB only at the end, as a camera does.
     #[arg(long)]
     pub linear_light: bool,
+    /// What the scene shows: layers (objects over a table-top, depth steps everywhere), tilted or
+    /// curved (one surface, smooth depth, no occlusion), dark-on-light or light-on-dark (a few
+    /// near objects over a tilted ground).
+    #[arg(long, default_value = "layers", value_name = "KIND",
+          value_parser = clap::builder::PossibleValuesParser::new(SceneKind::ALL.map(|k| k.1)))]
+    pub scene: String,
+    /// A photograph (JPEG, PNG or TIFF) to paint the scene with, mirrored to cover it: the
+    /// surface of tilted and curved, the ground of dark-on-light, the objects of light-on-dark.
+    #[arg(long, value_name = "FILE")]
+    pub photo: Option<PathBuf>,
+    /// Total magnification change across the sweep of a stack that is not hand-held (a tripod
+    /// stack whose lens breathes), e.g. 0.006 (0..=0.2).
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    pub tripod_breathing: f64,
     /// Also write each frame's true per-pixel motion (`motion_NN.png`, see sim-data/README.md),
     /// what an aligned depth oracle needs on a stack with parallax.
     #[arg(long)]
@@ -110,6 +127,11 @@ impl SimulateArgs {
             near_diopters: self.near_diopters,
             far_diopters: self.far_diopters,
             linear_light: self.linear_light,
+            scene: SceneKind::ALL
+                .iter()
+                .find(|k| k.1 == self.scene)
+                .map_or(SceneKind::Layers, |k| k.0),
+            tripod_breathing: self.tripod_breathing,
         }
     }
 
@@ -146,6 +168,9 @@ impl SimulateArgs {
     pub fn validate(&self) -> Result<SimParams> {
         if !(1..=100).contains(&self.quality) {
             bail!("--quality {} is out of range 1..=100", self.quality);
+        }
+        if self.photo.is_some() && self.scene == "layers" {
+            bail!("--photo needs a --scene other than layers (tilted, curved, dark-on-light, light-on-dark)");
         }
         let p = self.params();
         if let Err(e) = p.validate() {
@@ -228,7 +253,31 @@ pub fn command_line(p: &SimParams, quality: u32, dir: &Path) -> String {
     if p.linear_light {
         s += " --linear-light";
     }
+    if p.scene != SceneKind::Layers {
+        let name = SceneKind::ALL
+            .iter()
+            .find(|k| k.0 == p.scene)
+            .map_or("", |k| k.1);
+        s += &format!(" --scene {name}");
+    }
+    if p.tripod_breathing > 0.0 {
+        s += &format!(" --tripod-breathing {}", p.tripod_breathing);
+    }
     s
+}
+
+/// The photograph `--photo` names, as the simulator's display values.
+fn load_photo(path: &Path) -> Result<Photo> {
+    let img = load_rgb8(path).with_context(|| format!("--photo {}", path.display()))?;
+    Ok(Photo {
+        width: img.width(),
+        height: img.height(),
+        rgb: img
+            .data()
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]].map(|v| v as f32 / 255.0))
+            .collect(),
+    })
 }
 
 pub fn frame_name(i: usize) -> String {
@@ -254,7 +303,8 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let dir = &args.output;
     fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create directory", dir.display()))?;
-    let scene = sim::scene::Scene::generate(&p);
+    let photo = args.photo.as_deref().map(load_photo).transpose()?;
+    let scene = sim::scene::Scene::generate_with(&p, photo.map(Arc::new));
     let rendered = sim::render::render_scene(&p, &scene);
     let stack = &rendered.stack;
     let quality = args.quality as u8;
@@ -303,6 +353,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
             .map(|(name, a)| FrameTransform {
                 file: name.clone(),
                 ref_to_frame: *a,
+                local_field: None,
             })
             .collect(),
     };
@@ -319,7 +370,12 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
                 .shake
                 .iter()
                 .map(|s| format!(" --shake {s}"))
-                .collect::<String>(),
+                .collect::<String>()
+            + &args
+                .photo
+                .as_ref()
+                .map(|f| format!(" --photo {}", f.display()))
+                .unwrap_or_default(),
         seed: p.seed,
         params: &p,
         jpeg_quality: args.quality,

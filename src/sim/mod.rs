@@ -12,12 +12,14 @@
 //! * [`optics`] maps depth to defocus sigma; [`pose`] draws hand-held poses;
 //! * [`mod@render`] composites the layers, warps, and adds gain and noise.
 //!
-//! [`flats`] renders another kind of stack: smooth regions where many frames tie, hard for the
-//! labelling.
+//! [`kinds`] builds the scenes other than the layered table-top (smooth depth without occlusions,
+//! dark or light occluders, photographs); [`flats`] renders another kind of stack: smooth regions
+//! where many frames tie, hard for the labelling.
 
 pub mod bundle;
 pub mod demosaic_scenes;
 pub mod flats;
+pub mod kinds;
 pub mod optics;
 pub mod pose;
 pub mod render;
@@ -72,6 +74,42 @@ pub struct SimParams {
     /// model fitted to display-value mixing would only invert the simulator's own formula.
     #[serde(default)]
     pub linear_light: bool,
+    /// What the scene shows.
+    #[serde(default)]
+    pub scene: SceneKind,
+    /// Total magnification change across the sweep of a stack that is not hand-held (a tripod
+    /// stack whose lens breathes), e.g. 0.006; hand-held stacks use `breathing`.
+    #[serde(default)]
+    pub tripod_breathing: f64,
+}
+
+/// The kinds of scene the simulator draws.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SceneKind {
+    /// Textured objects on several planes overlapping each other and a slanted ruler over a
+    /// table-top: depth steps everywhere.
+    #[default]
+    Layers,
+    /// One surface tilted in depth from the nearest plane to the farthest: no occlusion.
+    Tilted,
+    /// One curved surface (a dome or a cylinder) nearest in its middle: no occlusion.
+    Curved,
+    /// Dark objects on the near planes over a light ground tilted across the far half.
+    DarkOnLight,
+    /// Light objects on the near planes over a dark ground tilted across the far half.
+    LightOnDark,
+}
+
+impl SceneKind {
+    /// Every kind with its command-line name.
+    pub const ALL: [(SceneKind, &'static str); 5] = [
+        (SceneKind::Layers, "layers"),
+        (SceneKind::Tilted, "tilted"),
+        (SceneKind::Curved, "curved"),
+        (SceneKind::DarkOnLight, "dark-on-light"),
+        (SceneKind::LightOnDark, "light-on-dark"),
+    ];
 }
 
 impl Default for SimParams {
@@ -96,6 +134,8 @@ impl Default for SimParams {
             near_diopters: 20.0,
             far_diopters: 5.0,
             linear_light: false,
+            scene: SceneKind::Layers,
+            tripod_breathing: 0.0,
         }
     }
 }
@@ -142,6 +182,7 @@ impl SimParams {
         within("max_shift", self.max_shift, 0.0, 0.2)?;
         within("max_rotation_deg", self.max_rotation_deg, 0.0, 10.0)?;
         within("breathing", self.breathing, 0.0, 0.2)?;
+        within("tripod_breathing", self.tripod_breathing, 0.0, 0.2)?;
         within("gain_jitter", self.gain_jitter, 0.0, 0.5)?;
         within("wb_jitter", self.wb_jitter, 0.0, 0.5)?;
         within("noise_sigma", self.noise_sigma, 0.0, 50.0)?;

@@ -29,12 +29,19 @@ impl Pose {
     }
 }
 
-/// Absolute breathing magnification of frame `i` of `n`: `1 + breathing·(i/(n−1) − 0.5)`.
+/// Absolute breathing magnification of frame `i` of `n`: `1 + breathing·(i/(n−1) − 0.5)`, with
+/// the hand-held `breathing` or, on a stack that is not hand-held, `tripod_breathing`.
 pub fn breathing_scale(p: &SimParams, i: usize) -> f64 {
-    1.0 + p.breathing * (i as f64 / (p.planes - 1) as f64 - 0.5)
+    let b = if p.handheld {
+        p.breathing
+    } else {
+        p.tripod_breathing
+    };
+    1.0 + b * (i as f64 / (p.planes - 1) as f64 - 0.5)
 }
 
-/// Draws every frame's pose. Without `handheld` all are the identity. Otherwise a slow drift
+/// Draws every frame's pose. Without `handheld` all are the identity but for the lens's
+/// `tripod_breathing` (a scale about the centre, relative to the reference's). Otherwise a slow drift
 /// across the sweep (up to 60 % of the limits, growing with distance from the reference) plus
 /// per-frame tremor (up to 40 %) keep |translation| ≤ max_shift·width and |roll| ≤ max_rotation;
 /// the breathing scale is taken relative to the reference frame's, so the reference is exactly
@@ -43,7 +50,17 @@ pub fn draw_poses(p: &SimParams, seed_stream: u64) -> Vec<Pose> {
     let n = p.planes;
     let reference = (n - 1) / 2;
     if !p.handheld {
-        return vec![Pose::IDENTITY; n];
+        let s_ref = breathing_scale(p, reference);
+        return (0..n)
+            .map(|i| Pose {
+                scale: if i == reference {
+                    1.0
+                } else {
+                    breathing_scale(p, i) / s_ref
+                },
+                ..Pose::IDENTITY
+            })
+            .collect();
     }
     let mut rng = Rng::stream(p.seed, seed_stream);
     let tmax = p.max_shift * p.width as f64;

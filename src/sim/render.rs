@@ -50,7 +50,7 @@ impl Canvas {
                 + p.parallax_px
                 + 2.0
         } else {
-            0.0
+            w.hypot(h) / 2.0 * p.tripod_breathing
         };
         let margin = (geo + pad).ceil() as usize;
         Canvas {
@@ -98,7 +98,7 @@ impl Parallax {
         }
         match layer.depth {
             Depth::Plane(q) => q < self.q_far,
-            Depth::Slant { .. } => true,
+            Depth::Slant { .. } | Depth::Curve { .. } => true,
         }
     }
 
@@ -419,7 +419,7 @@ pub fn render_scene(p: &SimParams, scene: &Scene) -> Rendered {
                     let opaque = layer.shape.bbox().is_none();
                     blur_uniform(r, optics.sigma_q(q, i), opaque)
                 }
-                Depth::Slant { .. } => {
+                Depth::Slant { .. } | Depth::Curve { .. } => {
                     let m = cv.margin as f64;
                     let sig = Plane::from_fn(r.width(), r.height(), 1, |x, y, _| {
                         let (rx, ry) = ((r.x0 + x) as f64 - m, (r.y0 + y) as f64 - m);

@@ -8,8 +8,9 @@
 
 use super::rng::Rng;
 use super::shape::{Pt, Shape};
-use super::texture::{hsv, mix, Decal, Light, Paint, Pattern, Rgb, Texture};
-use super::SimParams;
+use super::texture::{hsv, mix, Decal, Light, Paint, Pattern, Photo, Rgb, Texture};
+use super::{SceneKind, SimParams};
+use std::sync::Arc;
 
 /// RNG stream for scene generation (other streams: poses, gains, noise).
 pub const STREAM_SCENE: u64 = 1;
@@ -23,6 +24,15 @@ pub enum Depth {
         origin: Pt,
         q0: f64,
         grad: Pt,
+        lo: f64,
+        hi: f64,
+    },
+    /// q = q0 + curvature.0·dx² + curvature.1·dy² around `centre`, clamped to lo..=hi: a dome
+    /// (both curvatures) or a cylinder lying along one axis (one of them zero).
+    Curve {
+        centre: Pt,
+        q0: f64,
+        curvature: Pt,
         lo: f64,
         hi: f64,
     },
@@ -40,6 +50,16 @@ impl Depth {
                 lo,
                 hi,
             } => (q0 + grad.0 * (x - origin.0) + grad.1 * (y - origin.1)).clamp(lo, hi),
+            Depth::Curve {
+                centre,
+                q0,
+                curvature,
+                lo,
+                hi,
+            } => {
+                let (dx, dy) = (x - centre.0, y - centre.1);
+                (q0 + curvature.0 * dx * dx + curvature.1 * dy * dy).clamp(lo, hi)
+            }
         }
     }
 
@@ -47,7 +67,7 @@ impl Depth {
     pub fn nominal(&self) -> f64 {
         match *self {
             Depth::Plane(q) => q,
-            Depth::Slant { q0, .. } => q0,
+            Depth::Slant { q0, .. } | Depth::Curve { q0, .. } => q0,
         }
     }
 }
@@ -74,8 +94,29 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Builds the scene for `p` (depends only on size, planes and seed).
+    /// Builds the scene for `p` (depends only on size, planes, seed and scene kind), the kinds
+    /// that can show a photograph without one.
     pub fn generate(p: &SimParams) -> Scene {
+        Self::generate_with(p, None)
+    }
+
+    /// Builds the scene of kind `p.scene`; `photo`, when given, paints the kinds that take one
+    /// (every kind but the layered table-top).
+    pub fn generate_with(p: &SimParams, photo: Option<Arc<Photo>>) -> Scene {
+        let layers = match p.scene {
+            SceneKind::Layers => Self::table_top(p),
+            kind => super::kinds::layers(kind, p, photo),
+        };
+        Scene {
+            width: p.width,
+            height: p.height,
+            planes: p.planes,
+            layers,
+        }
+    }
+
+    /// The layered table-top: background, overlapping objects and the slanted ruler.
+    fn table_top(p: &SimParams) -> Vec<Layer> {
         let mut rng = Rng::stream(p.seed, STREAM_SCENE);
         let (w, h) = (p.width as f64, p.height as f64);
         let n = p.planes;
@@ -97,12 +138,7 @@ impl Scene {
         }
         let mut layers = vec![background];
         layers.extend(best.expect("at least one layout").1);
-        Scene {
-            width: p.width,
-            height: p.height,
-            planes: n,
-            layers,
-        }
+        layers
     }
 
     /// Replaces every paint by one flat colour (tests: any gap or halo shows up as non-uniformity).
@@ -139,7 +175,7 @@ fn min_visible_fraction(objs: &[Layer], w: f64, h: f64) -> f64 {
 }
 
 /// A random colour with hue `hue` (0..1), saturation and value in the given ranges.
-fn colour(rng: &mut Rng, hue: f64, s: (f64, f64), v: (f64, f64)) -> Rgb {
+pub(super) fn colour(rng: &mut Rng, hue: f64, s: (f64, f64), v: (f64, f64)) -> Rgb {
     hsv(
         hue as f32,
         rng.range(s.0, s.1) as f32,
@@ -147,7 +183,7 @@ fn colour(rng: &mut Rng, hue: f64, s: (f64, f64), v: (f64, f64)) -> Rgb {
     )
 }
 
-fn tex(pattern: Pattern, paper: Rgb, ink: Rgb, rng: &mut Rng) -> Texture {
+pub(super) fn tex(pattern: Pattern, paper: Rgb, ink: Rgb, rng: &mut Rng) -> Texture {
     Texture {
         pattern,
         paper,
@@ -159,7 +195,8 @@ fn tex(pattern: Pattern, paper: Rgb, ink: Rgb, rng: &mut Rng) -> Texture {
     }
 }
 
-fn background(rng: &mut Rng, w: f64, h: f64, q: f64) -> Layer {
+/// The table-top background at plane `q`: wood, slate, moss or linen with printed patches.
+pub(super) fn background(rng: &mut Rng, w: f64, h: f64, q: f64) -> Layer {
     let s = w.min(h);
     // Palettes: (paper, ink, tint) for wood, slate, moss and linen table tops.
     let palettes: [(Rgb, Rgb, Rgb); 4] = [
@@ -327,6 +364,7 @@ fn background(rng: &mut Rng, w: f64, h: f64, q: f64) -> Layer {
         shape: Shape::Everywhere,
         paint: Paint {
             base,
+            photo: None,
             decals,
             light: None,
         },
@@ -365,7 +403,7 @@ const MATERIALS: [Material; 10] = [
 /// A star-shaped polygon: `n` vertices at radius r·(lo..hi), alternating with r·inner when
 /// `inner` is set (lobed, non-convex outline), stretched by `aspect` along `angle`.
 #[allow(clippy::too_many_arguments)]
-fn blob(
+pub(super) fn blob(
     rng: &mut Rng,
     c: Pt,
     r: f64,
@@ -636,6 +674,7 @@ fn object(rng: &mut Rng, m: Material, c: Pt, r: f64) -> (&'static str, Shape, Pa
     };
     let paint = Paint {
         base,
+        photo: None,
         decals,
         light: Some(light),
     };
@@ -754,6 +793,7 @@ fn ruler(rng: &mut Rng, w: f64, h: f64, n: usize) -> Layer {
         },
         paint: Paint {
             base: t,
+            photo: None,
             decals: Vec::new(),
             light: None,
         },

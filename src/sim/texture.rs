@@ -456,10 +456,68 @@ pub struct Light {
     pub amount: f32,
 }
 
+/// A photograph (RGB display values 0..=1, row-major) shared by the layers that show it.
+#[derive(Debug, PartialEq)]
+pub struct Photo {
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<Rgb>,
+}
+
+impl Photo {
+    /// The photograph's colour at (u, v) in its own pixels: bilinear, mirrored beyond its edges,
+    /// so a small crop covers any surface without a seam.
+    pub fn sample(&self, u: f64, v: f64) -> Rgb {
+        let mirror = |t: f64, n: usize| {
+            if n < 2 {
+                return 0.0;
+            }
+            let period = 2.0 * (n as f64 - 1.0);
+            let t = t.rem_euclid(period);
+            if t > n as f64 - 1.0 {
+                period - t
+            } else {
+                t
+            }
+        };
+        let (u, v) = (mirror(u, self.width), mirror(v, self.height));
+        let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
+        let at = |x: usize, y: usize| self.rgb[y * self.width + x];
+        let top = mix(at(x0, y0), at(x1, y0), fx);
+        let bottom = mix(at(x0, y1), at(x1, y1), fx);
+        mix(top, bottom, fy)
+    }
+}
+
+/// A photograph laid over a surface: surface point p shows photo pixel (p − origin)/scale, its
+/// values mapped linearly into `lo..=hi` (a light or a dark surface).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PhotoPaint {
+    pub photo: std::sync::Arc<Photo>,
+    pub origin: Pt,
+    pub scale: f64,
+    pub lo: f32,
+    pub hi: f32,
+}
+
+impl PhotoPaint {
+    pub fn color(&self, x: f64, y: f64) -> Rgb {
+        let c = self.photo.sample(
+            (x - self.origin.0) / self.scale,
+            (y - self.origin.1) / self.scale,
+        );
+        c.map(|v| self.lo + (self.hi - self.lo) * v)
+    }
+}
+
 /// Everything that decides a surface's colour.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Paint {
     pub base: Texture,
+    /// A photograph in place of `base`, under the decals and the light.
+    pub photo: Option<PhotoPaint>,
     pub decals: Vec<Decal>,
     pub light: Option<Light>,
 }
@@ -468,13 +526,17 @@ impl Paint {
     pub fn flat(c: Rgb) -> Self {
         Self {
             base: Texture::flat(c),
+            photo: None,
             decals: Vec::new(),
             light: None,
         }
     }
 
     pub fn color(&self, x: f64, y: f64) -> Rgb {
-        let mut c = self.base.color(x, y);
+        let mut c = match &self.photo {
+            Some(p) => p.color(x, y),
+            None => self.base.color(x, y),
+        };
         for d in &self.decals {
             if !d.shape.near(x, y) {
                 continue;

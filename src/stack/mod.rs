@@ -39,7 +39,7 @@ pub use params::{middle_frame, FuseParams, Method, DEFAULT_BUDGET};
 pub use register::{Placement, RegisterError, RegisterParams, Registration};
 pub use repair::{Repaired, Settled};
 pub use spill::{Light, Pair, Unmixed};
-pub use transform::{Affine, FrameTransform, OffsetField, Transforms};
+pub use transform::{Affine, FieldExtent, FrameTransform, OffsetField, Transforms};
 
 /// Not API: the engine's inner steps, re-exported for the crate's tests, benches and
 /// measurement tools. Anything here may change or go without notice.

@@ -223,6 +223,32 @@ pub struct FrameTransform {
     pub file: String,
     /// Takes reference-frame pixel coordinates to this frame's pixel coordinates.
     pub ref_to_frame: Affine,
+    /// How far the local field the fuse added to the affine reaches; absent where the frame kept
+    /// none (the affine stands alone).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local_field: Option<FieldExtent>,
+}
+
+/// The size of a local offset field, in frame pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FieldExtent {
+    /// 99th percentile of the displacement over the field's nodes.
+    pub p99_px: f64,
+    /// The largest displacement.
+    pub max_px: f64,
+    /// Share of the nodes displaced by more than half a pixel.
+    pub moved_share: f64,
+}
+
+impl FieldExtent {
+    pub fn of(f: &OffsetField) -> FieldExtent {
+        let moved = f.offsets.iter().filter(|o| o.0.hypot(o.1) > 0.5).count();
+        FieldExtent {
+            p99_px: f.reach(0.99),
+            max_px: f.reach(1.0),
+            moved_share: moved as f64 / f.offsets.len().max(1) as f64,
+        }
+    }
 }
 
 /// `{"reference": r, "size": [w, h], "frames": [...]}`.
@@ -257,6 +283,7 @@ mod tests {
             frames: vec![FrameTransform {
                 file: "a.jpg".into(),
                 ref_to_frame: Affine::IDENTITY,
+                local_field: None,
             }],
         };
         let s = serde_json::to_string(&t).unwrap();
