@@ -19,6 +19,7 @@ use focusd::backend::videodev::abi::{self, Fract};
 use focusd::backend::videodev::{BufType, ControlDesc, Device, Stream};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Frame, Imu, ImuSample, Nanos, Sensor, Take};
+use focusd::develop::StackDeveloper;
 use focusd::stack::Image;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -192,11 +193,11 @@ fn press(dev: &Device, info: &Info, name: &str) -> Check {
     set(dev, info.control(name)?.id, 0).map_err(|e| format!("pressing {name}: {e}"))
 }
 
-/// A take's picture (vivid's formats are all converted at capture).
-fn picture(t: &Take) -> Result<&Image<u8>, String> {
+/// A take's picture: a Bayer frame (vivid offers them too) developed as a capture's are.
+fn picture(t: &Take) -> Result<Image<u8>, String> {
     match &t.frame {
-        Frame::Picture(img) => Ok(img),
-        Frame::Raw(_) => Err("a raw frame from vivid".into()),
+        Frame::Picture(img) => Ok(img.clone()),
+        Frame::Raw(raw) => StackDeveloper::default().develop(raw),
     }
 }
 
@@ -326,7 +327,7 @@ fn lens_is_the_control(node: &Path, range: (i32, i32)) -> Check {
     let mut luma = Vec::new();
     for p in [range.0, range.1] {
         cam.focus(0, p).map_err(|e| format!("focus {p}: {e}"))?;
-        luma.push(mean_luma(picture(&capture(&mut cam)?)?));
+        luma.push(mean_luma(&picture(&capture(&mut cam)?)?));
     }
     ensure!(
         luma[1] - luma[0] > 60.0,
@@ -364,7 +365,7 @@ fn formats(node: &Path, info: &Info, raw: &Device, wanted: &[&str], sizes: &[(u3
             let mut cam = open(&cfg(node, Some(f), size))?;
             let take = capture(&mut cam)?;
             let g = raw.format(info.buf).map_err(|e| format!("G_FMT: {e}"))?;
-            let img = picture(&take)?;
+            let img = &picture(&take)?;
             let fourcc = String::from_utf8_lossy(&g.fourcc).trim_end().to_string();
             ensure!(
                 fourcc == *f,
@@ -662,7 +663,7 @@ fn stale_frames_dropped(node: &Path, range: (i32, i32)) -> Check {
             t.exposure_start,
             (returned - t.exposure_start) / 1000
         );
-        lumas.push(mean_luma(picture(&t)?));
+        lumas.push(mean_luma(&picture(&t)?));
     }
     let dark = lumas.iter().step_by(2).fold(f64::MIN, |a, &b| a.max(b));
     let bright = lumas
