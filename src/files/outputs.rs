@@ -11,7 +11,7 @@
 
 use super::error::{shown, FileError};
 use super::imageio;
-use super::temp::{dir_of, live, remove_any, same_file, sweep_stale, temp_path};
+use super::temp::{claim, dir_of, live, remove_any, same_file, sweep_stale, temp_path};
 use crate::stack::image::{Image, Sample};
 use std::fs::{self, File, OpenOptions};
 use std::io::Write;
@@ -24,22 +24,9 @@ type Result<T> = std::result::Result<T, FileError>;
 /// under its name out of the directory; a stale one of this process's id (a crash of an
 /// earlier process with the same id) is removed first.
 fn create_temp(path: &Path) -> Result<(PathBuf, File)> {
-    let tmp = temp_path(path)?;
-    let mut live = live();
-    remove_any(&tmp);
-    let file = OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&tmp)
-        .map_err(|error| FileError::Write {
-            path: shown(path),
-            error,
-        })?;
-    if let Err(e) = live.add(&tmp) {
-        let _ = fs::remove_file(&tmp);
-        return Err(e);
-    }
-    Ok((tmp, file))
+    claim(path, |tmp| {
+        OpenOptions::new().write(true).create_new(true).open(tmp)
+    })
 }
 
 /// Writes through a temporary file in the same directory and renames it into place, so a crash
@@ -277,17 +264,7 @@ impl StagedDir {
             });
         }
         sweep_stale(&dir);
-        let tmp = temp_path(path)?;
-        let mut live = live();
-        remove_any(&tmp);
-        fs::create_dir(&tmp).map_err(|error| FileError::Write {
-            path: shown(path),
-            error,
-        })?;
-        if let Err(e) = live.add(&tmp) {
-            let _ = fs::remove_dir(&tmp);
-            return Err(e);
-        }
+        let (tmp, ()) = claim(path, |tmp| fs::create_dir(tmp))?;
         Ok(StagedDir {
             path: path.to_path_buf(),
             tmp,

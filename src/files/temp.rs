@@ -72,6 +72,27 @@ pub fn abandon() {
     }
 }
 
+/// Makes `path`'s temporary (a file or a folder, by `make`) and records it as live: a stale one
+/// of this process's id (a crash of an earlier process with the same id) is removed first, and
+/// nothing is left if the process is being interrupted.
+pub(super) fn claim<T>(
+    path: &Path,
+    make: impl FnOnce(&Path) -> std::io::Result<T>,
+) -> Result<(PathBuf, T), FileError> {
+    let tmp = temp_path(path)?;
+    let mut live = live();
+    remove_any(&tmp);
+    let made = make(&tmp).map_err(|error| FileError::Write {
+        path: shown(path),
+        error,
+    })?;
+    if let Err(e) = live.add(&tmp) {
+        remove_any(&tmp);
+        return Err(e);
+    }
+    Ok((tmp, made))
+}
+
 /// The temporary path `path` is written through, beside it: `.NAME.focusd-PID.tmp`, with NAME
 /// cut to [`NAME_BYTES_KEPT`] bytes.
 pub fn temp_path(path: &Path) -> Result<PathBuf, FileError> {
