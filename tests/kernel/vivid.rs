@@ -107,7 +107,10 @@ fn run(node: &Path) -> Check {
     stale_frames_dropped(node, range)?;
     whole_sweep(node, range)?;
     set(&raw, brightness.id, brightness.default)?;
-    live_preview(node)?;
+    live_preview(node, "YUYV", (640, 360))?;
+    // A raw stream gets the cheap development: one pixel a 2x2 cell.
+    let bayer = BAYER.iter().find(|b| info.formats.iter().any(|f| f == *b));
+    live_preview(node, bayer.ok_or("no Bayer format")?, (320, 180))?;
     busy(node)?;
     timeout(node, &info, &raw)?;
     error_frames(node, &info, &raw)?;
@@ -794,12 +797,14 @@ fn await_ring(
     Ok(())
 }
 
-/// The daemon's live preview on the camera, without the bus: frames arrive in the ring, the
-/// camera is the preview's; a capture takes the camera (the preview pauses, its sequence
-/// stops) and gives it back (the preview resumes); the last client leaving closes the camera.
-fn live_preview(node: &Path) -> Check {
+/// The daemon's live preview on the camera, without the bus: with a 1280x720 capture
+/// configured, the preview streams `format` at vivid's 640x360 and its frames, of size `want`,
+/// arrive in the ring; the camera is the preview's; a capture takes the camera (the preview
+/// pauses, its sequence stops) and gives it back (the preview resumes); the last client
+/// leaving closes the camera.
+fn live_preview(node: &Path, format: &str, want: (usize, usize)) -> Check {
     let mut config = Config::default();
-    config.camera = cfg(node, Some("YUYV"), (640, 480));
+    config.camera = cfg(node, Some(format), (1280, 720));
     let opener = config.clone();
     let preview = Preview::new(move || preview::open_source(&opener, &Source::Device));
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -834,8 +839,8 @@ fn live_preview(node: &Path) -> Check {
             .collect(),
     );
     ensure!(
-        (img.width(), img.height()) == (640, 480),
-        "preview frame {}x{}, the stream is 640x480",
+        (img.width(), img.height()) == want,
+        "{format} preview frame {}x{}, expected {want:?}",
         img.width(),
         img.height()
     );
@@ -886,7 +891,8 @@ fn live_preview(node: &Path) -> Check {
     capture(&mut cam)?;
     cam.release().map_err(|e| format!("release: {e}"))?;
     ok(format!(
-        "live preview: frames in the ring ({rate:.1}/s, 640x480, colour bars {bars:?}), camera \
+        "live preview of {format}: frames in the ring ({rate:.1}/s, {want:?}, colour bars \
+         {bars:?}), camera \
          refused to others; paused at frame {paused_at} through 4 captures, resumed after; \
          stopped with its last client, camera free"
     ));

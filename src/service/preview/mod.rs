@@ -27,7 +27,9 @@ use std::time::{Duration, Instant};
 pub fn open_source(config: &Config, source: &Source) -> Result<Box<dyn FrameSource>, ServiceError> {
     Ok(match source {
         Source::Replay { dir, .. } => Box::new(ReplayPreview::open(&Bundle::open(dir)?)?),
-        Source::Device => Box::new(CameraPreview::new(v4l2::open(&config.camera)?)),
+        Source::Device => Box::new(CameraPreview::new(v4l2::preview::open_preview(
+            &config.camera,
+        )?)?),
     })
 }
 
