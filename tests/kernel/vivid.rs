@@ -803,16 +803,14 @@ fn await_ring(
 /// pauses, its sequence stops) and gives it back (the preview resumes); the last client
 /// leaving closes the camera.
 fn live_preview(node: &Path, format: &str, want: (usize, usize)) -> Check {
-    let mut config = Config::default();
-    config.camera = cfg(node, Some(format), (1280, 720));
+    let config = Config {
+        camera: cfg(node, Some(format), (1280, 720)),
+        ..Config::default()
+    };
     let opener = config.clone();
     let preview = Preview::new(move || preview::open_source(&opener, &Source::Device));
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .map_err(|e| format!("tokio: {e}"))?;
-    let fd = rt
-        .block_on(preview.start(":1.1", Duration::from_secs(600)))
+    let fd = preview
+        .start(":1.1", Duration::from_secs(600))
         .map_err(|e| format!("StartPreview: {e}"))?;
     let ring = RingReader::new(&fd).map_err(|e| format!("the preview's ring: {e}"))?;
     let started = Instant::now();

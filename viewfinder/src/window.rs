@@ -371,10 +371,11 @@ impl App {
                 due(RENEW_EVERY)
             }
             Some(Look::Same) => due(RENEW_EVERY),
-            Some(Look::Over(state)) => {
+            Some(Look::Over(state, why)) => {
                 s.preview = None;
                 if state == State::Failed {
-                    show_message(&self.ui, &gettext("The preview stopped: the camera failed"));
+                    let why = why.unwrap_or_else(|| gettext("the camera failed"));
+                    show_message(&self.ui, &format!("{}: {why}", gettext("No preview")));
                 }
                 due(RETRY_EVERY)
             }
