@@ -27,18 +27,7 @@ const RENEW_EVERY: Duration = Duration::from_secs(45);
 /// A preview that could not start is tried again this often.
 const RETRY_EVERY: Duration = Duration::from_secs(3);
 
-const CSS: &str = "
-.viewfinder { background: black; }
-.status { color: white; background: alpha(black, 0.6); border-radius: 12px; padding: 8px 16px;
-          font-size: 18px; }
-.message { color: white; background: alpha(black, 0.75); border-radius: 12px; padding: 16px; }
-.shutter { min-width: 88px; min-height: 88px; border-radius: 50%; padding: 0;
-           background: white; border: 6px solid alpha(white, 0.45); background-clip: padding-box; }
-.shutter:active { background: #ddd; }
-.shutter:disabled { background: alpha(white, 0.4); }
-.thumbnail { min-width: 64px; min-height: 64px; border-radius: 10px; padding: 0; }
-.cancel { min-height: 56px; min-width: 56px; padding: 0 12px; border-radius: 28px; }
-";
+const CSS: &str = include_str!("style.css");
 
 struct Ui {
     picture: gtk::Picture,
