@@ -194,3 +194,47 @@ fn the_preview_stops_with_its_last_client_and_when_it_times_out() {
         assert!(d.log().contains("no client renewed it"), "{}", d.log());
     });
 }
+
+#[test]
+fn a_preview_that_cannot_open_says_why_in_its_memory_and_a_new_start_tries_again() {
+    // The calm bundle with its reference frame replaced by a FIFO, which the preview refuses
+    // on its own thread; StartPreview answers with the memory at once.
+    let bundle = tempfile::tempdir().unwrap();
+    for f in std::fs::read_dir(bundle_dir("calm")).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, bundle.path().join(f.file_name().unwrap())).unwrap();
+    }
+    let reference = bundle.path().join("frame_02.jpg");
+    let jpeg = std::fs::read(&reference).unwrap();
+    std::fs::remove_file(&reference).unwrap();
+    rustix::fs::mknodat(
+        rustix::fs::CWD,
+        &reference,
+        rustix::fs::FileType::Fifo,
+        rustix::fs::Mode::from_raw_mode(0o600),
+        0,
+    )
+    .unwrap();
+    let bus = Bus::start();
+    let _d = Daemon::start(&bus, bundle.path(), false);
+    runtime().block_on(async {
+        let (_conn, proxy) = connect(&bus).await;
+        let fd: OwnedFd = proxy.start_preview().await.unwrap().into();
+        let ring = RingReader::new(&fd).unwrap();
+        until("failed", || ring.state() == Some(State::Failed)).await;
+        let why = ring.error().unwrap();
+        assert!(
+            why.contains("frame_02.jpg") && why.contains("not a regular file"),
+            "{why}"
+        );
+        assert_eq!(ring.sequence(), 0);
+        // The frame back in place: the next StartPreview opens a new memory with frames.
+        std::fs::remove_file(&reference).unwrap();
+        std::fs::write(&reference, &jpeg).unwrap();
+        let fd: OwnedFd = proxy.start_preview().await.unwrap().into();
+        let again = RingReader::new(&fd).unwrap();
+        until("frames", || again.sequence() >= 1).await;
+        assert_eq!(again.state(), Some(State::Running));
+        assert_eq!(ring.state(), Some(State::Failed));
+    });
+}

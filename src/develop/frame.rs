@@ -3,7 +3,7 @@
 //! copies these; developing them waits until the lens is done ([`StackDeveloper`]).
 
 use super::raw::{self, Packing};
-use super::{BayerOrder, Developer, Mosaic};
+use super::{encode, BayerOrder, Developer, Mosaic};
 use crate::stack::image::Image;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -92,10 +92,21 @@ pub struct StackDeveloper {
 
 impl StackDeveloper {
     pub fn develop(&mut self, raw: &RawFrame) -> Result<Image<u8>, String> {
-        let dev = self
-            .developer
-            .get_or_insert_with(|| Developer::new(raw.black_level, raw.matrix));
-        Ok(dev.develop(raw.mosaic()?))
+        let m = raw.mosaic()?;
+        Ok(self.developer(raw).develop(m))
+    }
+
+    /// The cheap development of `raw` at half size ([`Developer::develop_half_linear`]), with
+    /// the stack's white balance.
+    pub fn develop_half(&mut self, raw: &RawFrame) -> Result<Image<u8>, String> {
+        let m = raw.mosaic()?;
+        Ok(encode(&self.developer(raw).develop_half_linear(&m)))
+    }
+
+    /// The stack's developer, made for `raw`'s camera if this is the first frame.
+    fn developer(&mut self, raw: &RawFrame) -> &mut Developer {
+        self.developer
+            .get_or_insert_with(|| Developer::new(raw.black_level, raw.matrix))
     }
 }
 

@@ -9,6 +9,7 @@
 
 pub mod demosaic;
 pub mod frame;
+pub mod half;
 pub mod raw;
 
 use crate::stack::image::Image;
@@ -179,17 +180,37 @@ impl Developer {
     /// Linear sRGB from a mosaic: white balance (measured on this frame if none is locked yet,
     /// then locked), demosaic, colour matrix.
     pub fn develop_linear(&mut self, mut m: Mosaic) -> Image<f32> {
-        let gains = *self.white_balance.get_or_insert_with(|| grey_world(&[&m]));
-        m.balance(gains);
+        m.balance(self.gains(&m));
         let mut rgb = demosaic::demosaic(&m);
+        self.to_srgb(&mut rgb, [1.0; 3]);
+        rgb
+    }
+
+    /// Linear sRGB at half size from a mosaic ([`half::half_size`]), with the same white
+    /// balance (measured and locked as by [`Developer::develop_linear`]) and colour matrix as
+    /// the full development: the cheap development, for previews and for registering and
+    /// labelling a stack.
+    pub fn develop_half_linear(&mut self, m: &Mosaic) -> Image<f32> {
+        let gains = self.gains(m);
+        let mut rgb = half::half_size(m);
+        self.to_srgb(&mut rgb, gains);
+        rgb
+    }
+
+    /// The locked white balance, measured on `m` if none is yet.
+    fn gains(&mut self, m: &Mosaic) -> [f32; 3] {
+        *self.white_balance.get_or_insert_with(|| grey_world(&[m]))
+    }
+
+    /// Camera RGB, each channel times its `gains`, through the colour matrix, in place.
+    fn to_srgb(&self, rgb: &mut Image<f32>, gains: [f32; 3]) {
         let k = self.matrix;
         for px in rgb.data_mut().chunks_exact_mut(3) {
-            let v = [px[0], px[1], px[2]];
+            let v = [px[0] * gains[0], px[1] * gains[1], px[2] * gains[2]];
             for (out, row) in px.iter_mut().zip(k) {
                 *out = row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
             }
         }
-        rgb
     }
 
     /// 8-bit sRGB from a mosaic.

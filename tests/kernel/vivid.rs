@@ -20,9 +20,13 @@ use focusd::backend::videodev::{BufType, ControlDesc, Device, Stream};
 use focusd::capture::sweep::{sweep, SweepConfig, Unmonitored};
 use focusd::capture::{Camera, CaptureError, Frame, Imu, ImuSample, Nanos, Sensor, Take};
 use focusd::develop::StackDeveloper;
+use focusd::service::config::Config;
+use focusd::service::job::Source;
+use focusd::service::preview::ring::{RingReader, State};
+use focusd::service::preview::{self, Preview};
 use focusd::stack::Image;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 #[macro_use]
 mod support;
@@ -102,6 +106,11 @@ fn run(node: &Path) -> Check {
     lens_restored(node, &raw, brightness.id, range)?;
     stale_frames_dropped(node, range)?;
     whole_sweep(node, range)?;
+    set(&raw, brightness.id, brightness.default)?;
+    live_preview(node, "YUYV", (640, 360))?;
+    // A raw stream gets the cheap development: one pixel a 2x2 cell.
+    let bayer = BAYER.iter().find(|b| info.formats.iter().any(|f| f == *b));
+    live_preview(node, bayer.ok_or("no Bayer format")?, (320, 180))?;
     busy(node)?;
     timeout(node, &info, &raw)?;
     error_frames(node, &info, &raw)?;
@@ -764,6 +773,126 @@ fn whole_sweep(node: &Path, range: (i32, i32)) -> Check {
     ok(format!(
         "sweep: 4 planes at {got:?} (nearest first), every take accepted, mean luma {lumas:.0?} \
          falling with the lens position, camera released"
+    ));
+    Ok(())
+}
+
+/// Waits up to `within` for `ring` to satisfy `done`; says what it saw last otherwise.
+fn await_ring(
+    ring: &RingReader,
+    within: Duration,
+    what: &str,
+    done: impl Fn(&RingReader) -> bool,
+) -> Check {
+    let end = Instant::now() + within;
+    while !done(ring) {
+        ensure!(
+            Instant::now() < end,
+            "{what}: not within {within:?} (state {:?}, sequence {})",
+            ring.state(),
+            ring.sequence()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Ok(())
+}
+
+/// The daemon's live preview on the camera, without the bus: with a 1280x720 capture
+/// configured, the preview streams `format` at vivid's 640x360 and its frames, of size `want`,
+/// arrive in the ring; the camera is the preview's; a capture takes the camera (the preview
+/// pauses, its sequence stops) and gives it back (the preview resumes); the last client
+/// leaving closes the camera.
+fn live_preview(node: &Path, format: &str, want: (usize, usize)) -> Check {
+    let config = Config {
+        camera: cfg(node, Some(format), (1280, 720)),
+        ..Config::default()
+    };
+    let opener = config.clone();
+    let preview = Preview::new(move || preview::open_source(&opener, &Source::Device));
+    let fd = preview
+        .start(":1.1", Duration::from_secs(600))
+        .map_err(|e| format!("StartPreview: {e}"))?;
+    let ring = RingReader::new(&fd).map_err(|e| format!("the preview's ring: {e}"))?;
+    let started = Instant::now();
+    await_ring(&ring, Duration::from_secs(30), "5 preview frames", |r| {
+        r.sequence() >= 5
+    })?;
+    let rate = ring.sequence() as f64 / started.elapsed().as_secs_f64();
+    ensure!(
+        ring.state() == Some(State::Running),
+        "state {:?} while streaming",
+        ring.state()
+    );
+    let f = ring
+        .latest()
+        .ok_or("no frame in the ring after 5 were published")?;
+    let img = Image::from_vec(
+        f.width as usize,
+        f.height as usize,
+        3,
+        f.pixels
+            .chunks(f.stride as usize)
+            .flat_map(|row| &row[..f.width as usize * 3])
+            .copied()
+            .collect(),
+    );
+    ensure!(
+        (img.width(), img.height()) == want,
+        "{format} preview frame {}x{}, expected {want:?}",
+        img.width(),
+        img.height()
+    );
+    let bars = colour_bars(&img).map_err(|e| format!("preview frame: {e}"))?;
+    ensure!(
+        v4l2::open(&config.camera).is_err(),
+        "the camera opened beside the running preview: the preview does not hold it"
+    );
+
+    // A capture: the preview hands the camera over and pauses.
+    let hold = preview.hold_camera();
+    ensure!(
+        ring.state() == Some(State::Paused),
+        "state {:?} while held",
+        ring.state()
+    );
+    let paused_at = ring.sequence();
+    let mut cam = open(&config.camera)?;
+    let mut takes = 0;
+    while takes < 4 {
+        capture(&mut cam)?;
+        takes += 1;
+    }
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    drop(cam);
+    ensure!(
+        ring.sequence() == paused_at,
+        "the preview published {} frames while the capture held the camera",
+        ring.sequence() - paused_at
+    );
+    drop(hold);
+    await_ring(
+        &ring,
+        Duration::from_secs(30),
+        "the preview resuming",
+        |r| r.sequence() >= paused_at + 3 && r.state() == Some(State::Running),
+    )?;
+
+    // The last client leaves: the preview stops and closes the camera.
+    ensure!(preview.leave(":1.1", "left"), "the client was not known");
+    await_ring(
+        &ring,
+        Duration::from_secs(10),
+        "the preview stopping",
+        |r| r.state() == Some(State::Stopped),
+    )?;
+    let mut cam = open(&config.camera).map_err(|e| format!("after the preview stopped: {e}"))?;
+    capture(&mut cam)?;
+    cam.release().map_err(|e| format!("release: {e}"))?;
+    ok(format!(
+        "live preview of {format}: frames in the ring ({rate:.1}/s, {want:?}, colour bars \
+         {bars:?}), camera \
+         refused to others; paused at frame {paused_at} through 4 captures, resumed after; \
+         stopped with its last client, camera free"
     ));
     Ok(())
 }

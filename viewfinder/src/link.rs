@@ -158,8 +158,8 @@ fn explain(e: &FocusdError) -> String {
             let s = z.to_string();
             if s.contains("ServiceUnknown") || s.contains("NameHasNoOwner") {
                 gettext(
-                    "focusd is not running. Start it with “systemctl --user start focusd”; the \
-                     preview appears here when it runs.",
+                    // One line: po/update-pot reads it with xgettext's C lexer.
+                    "focusd is not running. Start it with “systemctl --user start focusd”; the preview appears here when it runs.",
                 )
             } else {
                 format!("{}: {s}", gettext("The daemon cannot be reached"))

@@ -16,8 +16,8 @@ pub enum Look {
     Frame(gdk::MemoryTexture),
     /// Nothing new; the preview is still on.
     Same,
-    /// The ring gets no more frames (stopped or failed): start a new preview.
-    Over(State),
+    /// The ring gets no more frames (stopped, or failed and why): start a new preview.
+    Over(State, Option<String>),
 }
 
 impl Preview {
@@ -28,7 +28,7 @@ impl Preview {
     pub fn look(&mut self) -> Look {
         let state = self.ring.state().unwrap_or(State::Failed);
         if matches!(state, State::Stopped | State::Failed) {
-            return Look::Over(state);
+            return Look::Over(state, self.ring.error());
         }
         if self.ring.sequence() == self.shown {
             return Look::Same;

@@ -1,5 +1,6 @@
 //! The one window: the preview filling it, a status line with the stage and its progress on
-//! top, and at the bottom the result's thumbnail, the shutter and, during a job, Cancel.
+//! top, and beside the picture (below it in portrait, right of it in landscape) the result's
+//! thumbnail, the shutter and, during a job, Cancel.
 
 use crate::link::{Event, Link};
 use crate::preview::{Look, Preview};
@@ -14,9 +15,12 @@ use std::time::{Duration, Instant};
 /// Phone-sized, portrait.
 const WIDTH: i32 = 360;
 const HEIGHT: i32 = 720;
-/// The bottom row's margins: clear of the phone's rounded corners and gesture area.
+/// The controls' margins: along them clear of the phone's rounded corners, and towards the
+/// edge clear of its gesture area.
 const SIDE_MARGIN: i32 = 24;
 const BOTTOM_MARGIN: i32 = 32;
+/// Between the picture and the controls.
+const GAP: i32 = 12;
 /// The result's thumbnail, a side.
 const THUMBNAIL: i32 = 64;
 /// How often the ring is looked at: twice the preview's rate, so no frame waits long.
@@ -27,20 +31,12 @@ const RENEW_EVERY: Duration = Duration::from_secs(45);
 /// A preview that could not start is tried again this often.
 const RETRY_EVERY: Duration = Duration::from_secs(3);
 
-const CSS: &str = "
-.viewfinder { background: black; }
-.status { color: white; background: alpha(black, 0.6); border-radius: 12px; padding: 8px 16px;
-          font-size: 18px; }
-.message { color: white; background: alpha(black, 0.75); border-radius: 12px; padding: 16px; }
-.shutter { min-width: 88px; min-height: 88px; border-radius: 50%; padding: 0;
-           background: white; border: 6px solid alpha(white, 0.45); background-clip: padding-box; }
-.shutter:active { background: #ddd; }
-.shutter:disabled { background: alpha(white, 0.4); }
-.thumbnail { min-width: 64px; min-height: 64px; border-radius: 10px; padding: 0; }
-.cancel { min-height: 56px; min-width: 56px; padding: 0 12px; border-radius: 28px; }
-";
+const CSS: &str = include_str!("style.css");
 
 struct Ui {
+    /// The picture's area and the controls, one after the other.
+    layout: gtk::Box,
+    controls: gtk::Box,
     picture: gtk::Picture,
     status: gtk::Label,
     progress: gtk::ProgressBar,
@@ -161,46 +157,50 @@ fn build(app: &adw::Application) -> Ui {
         .css_classes(["cancel"])
         .visible(false)
         .build();
-    // Three equal thirds, so the shutter stays centred whatever is shown beside it.
-    let bottom = gtk::Box::builder()
+    // Three equal thirds, so the shutter stays centred whatever is shown beside it; its own
+    // expansion set, so the picture gets all the room the controls do not need.
+    let controls = gtk::Box::builder()
         .homogeneous(true)
-        .valign(gtk::Align::End)
-        .margin_bottom(BOTTOM_MARGIN)
-        .margin_start(SIDE_MARGIN)
-        .margin_end(SIDE_MARGIN)
+        .hexpand(false)
+        .vexpand(false)
         .build();
-    // Each in a slot that stays when its button hides: a homogeneous box shares out its width
+    // Each in a slot that stays when its button hides: a homogeneous box shares out its room
     // among the children shown.
     for w in [
         thumbnail.upcast_ref::<gtk::Widget>(),
         shutter.upcast_ref(),
         cancel.upcast_ref(),
     ] {
-        let slot = gtk::Box::builder()
-            .halign(gtk::Align::Fill)
-            .valign(gtk::Align::Center)
-            .build();
+        let slot = gtk::Box::builder().build();
         w.set_halign(gtk::Align::Center);
+        w.set_valign(gtk::Align::Center);
         w.set_hexpand(true);
+        w.set_vexpand(true);
         slot.append(w);
-        bottom.append(&slot);
+        controls.append(&slot);
     }
     let overlay = gtk::Overlay::builder()
         .child(&picture)
-        .css_classes(["viewfinder"])
+        .hexpand(true)
+        .vexpand(true)
         .build();
     overlay.add_overlay(&top);
     overlay.add_overlay(&message);
-    overlay.add_overlay(&bottom);
+    let layout = gtk::Box::builder().css_classes(["viewfinder"]).build();
+    layout.append(&overlay);
+    layout.append(&controls);
+    arrange(&layout, &controls, false);
     let window = adw::ApplicationWindow::builder()
         .application(app)
         .title(gettext("Viewfinder"))
         .default_width(WIDTH)
         .default_height(HEIGHT)
-        .content(&overlay)
+        .content(&layout)
         .build();
     window.present();
     Ui {
+        layout,
+        controls,
         picture,
         status,
         progress,
@@ -210,6 +210,30 @@ fn build(app: &adw::Application) -> Ui {
         thumbnail,
         thumbnail_picture,
     }
+}
+
+/// Controls below the picture in portrait, in a column right of it in landscape: never over
+/// the picture.
+fn arrange(layout: &gtk::Box, controls: &gtk::Box, landscape: bool) {
+    let (along, across) = if landscape {
+        (gtk::Orientation::Horizontal, gtk::Orientation::Vertical)
+    } else {
+        (gtk::Orientation::Vertical, gtk::Orientation::Horizontal)
+    };
+    layout.set_orientation(along);
+    controls.set_orientation(across);
+    controls.set_margin_top(if landscape { SIDE_MARGIN } else { GAP });
+    controls.set_margin_bottom(if landscape {
+        SIDE_MARGIN
+    } else {
+        BOTTOM_MARGIN
+    });
+    controls.set_margin_start(if landscape { GAP } else { SIDE_MARGIN });
+    controls.set_margin_end(if landscape {
+        BOTTOM_MARGIN
+    } else {
+        SIDE_MARGIN
+    });
 }
 
 fn show_message(ui: &Ui, text: &str) {
@@ -359,8 +383,14 @@ impl App {
         }
     }
 
-    /// Shows the newest frame; starts, renews or restarts the preview when it is time.
+    /// Lays the window out for its shape; shows the newest frame; starts, renews or restarts
+    /// the preview when it is time.
     fn tick(self: &Rc<Self>) {
+        let ui = &self.ui;
+        let landscape = ui.layout.width() > ui.layout.height();
+        if landscape != (ui.layout.orientation() == gtk::Orientation::Horizontal) {
+            arrange(&ui.layout, &ui.controls, landscape);
+        }
         let mut s = self.session.borrow_mut();
         let look = s.preview.as_mut().map(Preview::look);
         let asked = s.asked;
@@ -371,10 +401,11 @@ impl App {
                 due(RENEW_EVERY)
             }
             Some(Look::Same) => due(RENEW_EVERY),
-            Some(Look::Over(state)) => {
+            Some(Look::Over(state, why)) => {
                 s.preview = None;
                 if state == State::Failed {
-                    show_message(&self.ui, &gettext("The preview stopped: the camera failed"));
+                    let why = why.unwrap_or_else(|| gettext("the camera failed"));
+                    show_message(&self.ui, &format!("{}: {why}", gettext("No preview")));
                 }
                 due(RETRY_EVERY)
             }

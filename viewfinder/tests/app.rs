@@ -343,6 +343,37 @@ fn the_preview_shows_the_reference_frame_and_the_shutter_takes_a_stack() {
         (r >= 0.8).then_some((shot, r))
     });
     eprintln!("thumbnail against the picture: correlation {r:.3}");
+
+    // Landscape: the controls move to a column right of the picture, off it. On the middle
+    // row, from the right: the shutter's white disc, its grey ring, a dark gap, then the
+    // picture (480x360 fitted to the window's height), which ends right of the middle.
+    let turned = Command::new("xdotool")
+        .args([
+            "windowsize",
+            &window,
+            &HEIGHT.to_string(),
+            &WIDTH.to_string(),
+        ])
+        .env("DISPLAY", &display)
+        .status()
+        .unwrap();
+    assert!(turned.success());
+    let (ring, picture_end) = until("the landscape layout", Duration::from_secs(20), || {
+        let shot = screenshot(&display, &window);
+        shot.save(shots.join("landscape.png")).unwrap();
+        if shot.dimensions() != (HEIGHT, WIDTH) {
+            return None;
+        }
+        let shot = luma(&shot);
+        let y = WIDTH / 2;
+        let at = |x: u32| shot.get_pixel(x, y)[0];
+        let disc = (0..HEIGHT).rev().find(|&x| at(x) > 240)?;
+        let disc_left = (0..disc).rev().find(|&x| at(x) <= 240)?;
+        let ring = (0..disc_left).rev().find(|&x| at(x) <= 24)?;
+        let end = (0..ring).rev().find(|&x| at(x) > 24)?;
+        (disc > HEIGHT * 3 / 4 && end + 8 < ring && end > HEIGHT / 2).then_some((ring, end))
+    });
+    eprintln!("landscape: the picture ends at x = {picture_end}, the shutter's ring at {ring}");
     let text = std::fs::read_to_string(&app_log).unwrap();
     assert!(!text.contains("CRITICAL"), "GTK criticals: {text}");
 }

@@ -1,8 +1,8 @@
 //! A replay's preview: the bundle's reference frame (the middle plane's first take, the frame
-//! a fuse registers onto), shrunk once and served again and again.
+//! a fuse registers onto), shrunk and turned upright once and served again and again.
 
 use super::Bundle;
-use crate::capture::preview::{shrink, FrameSource};
+use crate::capture::preview::{fit, upright, FrameSource};
 use crate::capture::CaptureError;
 use crate::stack::image::Image;
 use crate::stack::middle_frame;
@@ -28,7 +28,7 @@ impl ReplayPreview {
         let image = crate::files::imageio::load_rgb8(&path)
             .map_err(|e| error(crate::base::clip::chain(&e)))?;
         Ok(Self {
-            frame: shrink(&image),
+            frame: fit(&image, upright(bundle.manifest.rotation)?),
         })
     }
 }

@@ -15,6 +15,7 @@ pub mod format;
 pub mod lens;
 pub mod media_ops;
 pub mod pipeline;
+pub mod preview;
 pub mod profile;
 pub mod sensor;
 

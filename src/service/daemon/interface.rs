@@ -79,7 +79,8 @@ impl Focusd {
     /// Starts the live preview for the caller, or renews it, and returns the shared memory
     /// its frames are written to (docs/guide.md, "The live preview"). It runs until the caller
     /// calls `StopPreview` or leaves the bus, or `[service] preview_timeout_s` after the
-    /// caller's last `StartPreview`; a capture pauses it.
+    /// caller's last `StartPreview`; a capture pauses it. Returns at once: the camera opens
+    /// meanwhile, and the memory's state says when it fails, and why.
     async fn start_preview(
         &self,
         #[zbus(header)] header: Header<'_>,
@@ -97,7 +98,6 @@ impl Focusd {
         let fd = self
             .preview
             .start(client.as_str(), timeout)
-            .await
             .map_err(|e| FocusdError::Preview(clip::chain(&e)))?;
         Ok(fd.into())
     }

@@ -1,8 +1,10 @@
 //! The live preview: who is watching, the thread that writes frames into the shared ring
 //! (`ring`), and the hand-over of the camera to a capture and back.
 //!
-//! The preview runs while it has a client: the first `StartPreview` opens the frame source and
-//! the ring, and the preview stops, closing both, when the last client calls `StopPreview`,
+//! The preview runs while it has a client: the first `StartPreview` creates the ring and starts
+//! the preview's thread, which opens the frame source (a camera may take a while, and the bus
+//! does not wait for it: a source that cannot open fails the ring, saying why). The preview
+//! stops, closing both, when the last client calls `StopPreview`,
 //! leaves the bus, or has not renewed it with a `StartPreview` for `[service]
 //! preview_timeout_s`. A capture job takes the camera with [`Preview::hold_camera`]: the
 //! preview thread closes its source, marks the ring paused and waits until the job is over.
@@ -27,7 +29,9 @@ use std::time::{Duration, Instant};
 pub fn open_source(config: &Config, source: &Source) -> Result<Box<dyn FrameSource>, ServiceError> {
     Ok(match source {
         Source::Replay { dir, .. } => Box::new(ReplayPreview::open(&Bundle::open(dir)?)?),
-        Source::Device => Box::new(CameraPreview::new(v4l2::open(&config.camera)?)),
+        Source::Device => Box::new(CameraPreview::new(v4l2::preview::open_preview(
+            &config.camera,
+        )?)?),
     })
 }
 
@@ -79,8 +83,8 @@ pub struct Preview {
 pub enum PreviewError {
     #[error("cannot create the preview's shared memory: {0}")]
     Memory(#[source] std::io::Error),
-    #[error("cannot start the preview: {0}")]
-    Source(String),
+    #[error("cannot start the preview's thread: {0}")]
+    Thread(#[source] std::io::Error),
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -123,38 +127,27 @@ impl Preview {
     }
 
     /// Adds `client` (a unique bus name) and renews the preview for `timeout`; the first client
-    /// starts it. Returns a descriptor of the ring.
-    pub async fn start(&self, client: &str, timeout: Duration) -> Result<OwnedFd, PreviewError> {
-        let (ring, first) = {
-            let mut clients = lock(&self.clients);
-            clients.deadline = Some(Instant::now() + timeout);
-            // A ring whose thread failed is replaced: the new one tries the camera again.
-            let live = clients
-                .ring
-                .take()
-                .filter(|r| r.state() != Some(State::Failed));
-            let started = match live {
-                Some(ring) => {
-                    clients.ring = Some(ring.clone());
-                    (ring, None)
-                }
-                None => {
-                    let ring = Arc::new(RingWriter::create().map_err(PreviewError::Memory)?);
-                    let first = self.spawn(ring.clone());
-                    clients.ring = Some(ring.clone());
-                    (ring, Some(first))
-                }
-            };
-            clients.names.insert(client.to_string());
-            started
-        };
-        if let Some(first) = first {
-            // The first frame, or why the source cannot open (no camera, camera busy).
-            if let Ok(Err(e)) = first.await {
-                self.stop(&format!("it failed: {e}"));
-                return Err(PreviewError::Source(e));
+    /// starts it. Returns a descriptor of the ring at once: the source opens on the preview's
+    /// thread, and a failure to open shows in the ring's state.
+    pub fn start(&self, client: &str, timeout: Duration) -> Result<OwnedFd, PreviewError> {
+        let mut clients = lock(&self.clients);
+        clients.deadline = Some(Instant::now() + timeout);
+        // A ring whose thread failed is replaced: the new one tries the camera again.
+        let live = clients
+            .ring
+            .take()
+            .filter(|r| r.state() != Some(State::Failed));
+        let ring = match live {
+            Some(ring) => ring,
+            None => {
+                let ring = Arc::new(RingWriter::create().map_err(PreviewError::Memory)?);
+                self.spawn(ring.clone())?;
+                ring
             }
-        }
+        };
+        clients.ring = Some(ring.clone());
+        clients.names.insert(client.to_string());
+        drop(clients);
         let fd = ring.share().map_err(PreviewError::Memory)?;
         tracing::info!(client, "preview: client added");
         Ok(fd)
@@ -200,24 +193,19 @@ impl Preview {
         tracing::info!("preview stopped: {why}");
     }
 
-    /// Starts a preview thread writing into `ring`; the receiver hears when the first frame is
-    /// out, or why there is none (at once while a capture holds the camera).
-    fn spawn(&self, ring: Arc<RingWriter>) -> tokio::sync::oneshot::Receiver<Result<(), String>> {
-        let (tx, rx) = tokio::sync::oneshot::channel();
+    /// Starts a preview thread writing into `ring`.
+    fn spawn(&self, ring: Arc<RingWriter>) -> Result<(), PreviewError> {
         let runner = Runner {
             open: self.open.clone(),
             gate: self.gate.clone(),
             generation: self.gate.lock().generation,
             ring,
-            first: Some(tx),
         };
-        let spawned = std::thread::Builder::new()
+        std::thread::Builder::new()
             .name("focusd-preview".into())
-            .spawn(move || runner.run());
-        if let Err(e) = spawned {
-            tracing::error!("preview: cannot start its thread: {e}");
-        }
-        rx
+            .spawn(move || runner.run())
+            .map(drop)
+            .map_err(PreviewError::Thread)
     }
 }
 
@@ -227,12 +215,10 @@ struct Runner {
     gate: Arc<Gate>,
     generation: u64,
     ring: Arc<RingWriter>,
-    /// Told of the first frame, or of the first failure.
-    first: Option<tokio::sync::oneshot::Sender<Result<(), String>>>,
 }
 
 impl Runner {
-    fn run(mut self) {
+    fn run(self) {
         let period = Duration::from_secs(1) / FPS;
         let mut source: Option<Box<dyn FrameSource>> = None;
         let mut next = Instant::now();
@@ -240,7 +226,7 @@ impl Runner {
         let end = loop {
             let mut c = gate.lock();
             if c.generation != self.generation {
-                break State::Stopped;
+                break Ok(());
             }
             if c.held {
                 if source.take().is_some() {
@@ -248,17 +234,20 @@ impl Runner {
                     gate.changed.notify_all();
                 }
                 self.ring.set_state(State::Paused);
-                self.tell(Ok(()));
                 drop(gate.wait(c));
                 continue;
             }
             if source.is_none() {
-                // Opened under the lock: a capture that wants the camera waits for it anyway.
+                // Opened outside the lock, so a stop or a new client never waits for the
+                // camera; a capture that wants it waits, as `open` says it is taken.
+                c.open = true;
+                drop(c);
                 match (self.open)() {
                     Ok(s) => source = Some(s),
                     Err(e) => break self.fail(crate::base::clip::chain(&e)),
                 }
-                c.open = true;
+                // A stop or a capture may have come meanwhile.
+                continue;
             }
             drop(c);
             let Some(s) = source.as_mut() else { continue };
@@ -267,7 +256,6 @@ impl Runner {
                 Err(e) => break self.fail(crate::base::clip::chain(&e)),
             }
             self.ring.set_state(State::Running);
-            self.tell(Ok(()));
             // The next frame at the next tick, or sooner for a stop or a capture.
             next = (next + period).max(Instant::now());
             let mut c = gate.lock();
@@ -287,19 +275,15 @@ impl Runner {
         drop(source);
         gate.lock().open = false;
         gate.changed.notify_all();
-        self.ring.set_state(end);
-    }
-
-    fn tell(&mut self, r: Result<(), String>) {
-        if let Some(tx) = self.first.take() {
-            let _ = tx.send(r);
+        match end {
+            Err(error) => self.ring.fail(&error),
+            Ok(()) => self.ring.set_state(State::Stopped),
         }
     }
 
-    fn fail(&mut self, error: String) -> State {
+    fn fail(&self, error: String) -> Result<(), String> {
         tracing::error!("preview failed: {error}");
-        self.tell(Err(error));
-        State::Failed
+        Err(error)
     }
 }
 
@@ -330,5 +314,73 @@ pub async fn watch(preview: Arc<Preview>, conn: zbus::Connection) {
             }
             _ = tick.tick() => preview.expire(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::capture::CaptureError;
+    use crate::stack::image::Image;
+    use ring::RingReader;
+    use std::sync::mpsc;
+
+    struct Still(Image<u8>);
+
+    impl FrameSource for Still {
+        fn next_frame(&mut self) -> Result<&Image<u8>, CaptureError> {
+            Ok(&self.0)
+        }
+    }
+
+    fn until(what: &str, f: impl Fn() -> bool) {
+        let t = Instant::now();
+        while !f() {
+            assert!(t.elapsed() < Duration::from_secs(20), "never: {what}");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    #[test]
+    fn start_and_stop_do_not_wait_for_a_camera_that_is_opening() {
+        // The camera opens when the test says so.
+        let (go, opens) = mpsc::channel::<Result<(), String>>();
+        let opens = Mutex::new(opens);
+        let preview = Preview::new(move || {
+            let r = lock(&opens).recv().expect("the test ended");
+            r.map_err(|e| CaptureError::device("camera", e))?;
+            Ok(Box::new(Still(Image::new(4, 2, 3))) as Box<dyn FrameSource>)
+        });
+        let minute = Duration::from_secs(60);
+        // Returns while the camera is still opening: no frame, no failure yet.
+        let ring = RingReader::new(preview.start(":1.1", minute).unwrap()).unwrap();
+        assert_eq!((ring.sequence(), ring.state()), (0, Some(State::Running)));
+        // A second client and a stop are answered meanwhile too.
+        preview.start(":1.2", minute).unwrap();
+        assert!(preview.leave(":1.2", "left"));
+        go.send(Ok(())).unwrap();
+        until("a frame", || ring.sequence() >= 1);
+        // The last client stops it.
+        assert!(preview.leave(":1.1", "left"));
+        until("stopped", || ring.state() == Some(State::Stopped));
+
+        // A camera that cannot open fails the ring, saying why; the next start tries again.
+        let ring = RingReader::new(preview.start(":1.3", minute).unwrap()).unwrap();
+        go.send(Err("camera busy: close the other app".into()))
+            .unwrap();
+        until("failed", || ring.state() == Some(State::Failed));
+        let why = ring.error().unwrap();
+        assert!(why.contains("camera busy: close the other app"), "{why}");
+        let again = RingReader::new(preview.start(":1.3", minute).unwrap()).unwrap();
+        assert_eq!(again.state(), Some(State::Running));
+        go.send(Ok(())).unwrap();
+        until("frames again", || again.sequence() >= 1);
+        // A capture waits for the camera the preview holds, then has it.
+        let hold = preview.hold_camera();
+        until("paused", || again.state() == Some(State::Paused));
+        drop(hold);
+        go.send(Ok(())).unwrap();
+        until("resumed", || again.state() == Some(State::Running));
+        assert!(preview.leave(":1.3", "left"));
     }
 }

@@ -12,8 +12,13 @@
 //! 24   u32 max_height (960)              60   u32 state (0 running, 1 paused, 2 stopped, 3 failed)
 //! 64 + 32 i: slot i's u64 lock (odd while written), u64 frame (its sequence number),
 //!            u32 width, u32 height, u32 stride, u32 reserved
+//! 1024 u32 error_len, 1028 [u8; error_len] error (UTF-8, at most 1020 bytes): why the
+//!            preview failed, written before `state` becomes 3
 //! pixels_at + i * slot_bytes: slot i's rows, `stride` bytes apart
 //! ```
+//!
+//! A new file is running with `sequence` 0 while the camera opens; it fails (state 3, the
+//! reason in `error`) when the camera cannot be opened or read.
 //!
 //! A frame goes into the slot after the newest, under that slot's lock (a seqlock: the lock is
 //! odd while the slot is written, and a reader that saw it change copies again), so a reader
@@ -51,6 +56,8 @@ const AT_NEWEST: usize = 56;
 const AT_STATE: usize = 60;
 const AT_SLOT_HEADERS: usize = 64;
 const SLOT_HEADER_BYTES: usize = 32;
+const AT_ERROR: usize = 1024;
+const ERROR_BYTES: usize = 1020;
 
 /// What the preview is doing, as the header's `state` says.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -172,6 +179,23 @@ impl RingWriter {
             .store(state as u32, Ordering::Release);
     }
 
+    /// Marks the preview failed, saying why (clipped to the header's room).
+    pub fn fail(&self, reason: &str) {
+        let mut len = reason.len().min(ERROR_BYTES);
+        while !reason.is_char_boundary(len) {
+            len -= 1;
+        }
+        // SAFETY: the text's room lies within the header; readers read it only after they
+        // see the failed state, stored below with release ordering, and it is written once.
+        unsafe {
+            std::ptr::copy_nonoverlapping(reason.as_ptr(), self.map.ptr.add(AT_ERROR + 4), len)
+        };
+        self.map
+            .u32_at(AT_ERROR)
+            .store(len as u32, Ordering::Relaxed);
+        self.set_state(State::Failed);
+    }
+
     /// Copies `image` (RGB, within the preview's size) into the slot after the newest and
     /// makes it the newest.
     pub fn publish(&self, image: &Image<u8>) {
@@ -273,6 +297,20 @@ impl RingReader {
         State::from_u32(self.map.u32_at(AT_STATE).load(Ordering::Acquire))
     }
 
+    /// Why the preview failed, once it has.
+    pub fn error(&self) -> Option<String> {
+        if self.state() != Some(State::Failed) {
+            return None;
+        }
+        let len = (self.map.u32_at(AT_ERROR).load(Ordering::Relaxed) as usize).min(ERROR_BYTES);
+        let mut text = vec![0u8; len];
+        // SAFETY: within the header, written before the failed state this thread saw.
+        unsafe {
+            std::ptr::copy_nonoverlapping(self.map.ptr.add(AT_ERROR + 4), text.as_mut_ptr(), len)
+        };
+        Some(String::from_utf8_lossy(&text).into_owned())
+    }
+
     /// Frames published so far.
     pub fn sequence(&self) -> u64 {
         self.map.u64_at(AT_SEQUENCE).load(Ordering::Acquire)
@@ -345,6 +383,12 @@ mod tests {
         assert_eq!(reader.state(), Some(State::Running));
         ring.set_state(State::Paused);
         assert_eq!(reader.state(), Some(State::Paused));
+        assert_eq!(reader.error(), None);
+        // A reason longer than the room is clipped at a character's boundary.
+        let long = "é".repeat(600);
+        ring.fail(&long);
+        assert_eq!(reader.state(), Some(State::Failed));
+        assert_eq!(reader.error().unwrap(), "é".repeat(510));
     }
 
     #[test]
