@@ -6,10 +6,10 @@
 //! focusd develops camera RGB as linear sRGB; the matrix written then says exactly that
 //! (ColorMatrix1 = XYZ to linear sRGB under D65), so other tools render what focusd does.
 
-//mod read;
+mod read;
 mod write;
 
-//pub use read::{load, probe, DngFrame};
+pub use read::{decode, load, probe, DngFrame};
 pub use write::{encode, DngInfo};
 
 use crate::develop::BayerOrder;

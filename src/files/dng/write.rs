@@ -131,6 +131,5 @@ pub fn encode(frame: &RawFrame, info: &DngInfo) -> Result<Vec<u8>, FileError> {
     } else {
         image!(colortype::Gray16, &samples);
     }
-    drop(tiff);
     Ok(out.into_inner())
 }
