@@ -2,6 +2,9 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
+use focusd::capture::{self, Frame};
+use focusd::develop::StackDeveloper;
+use focusd::files::dng;
 use focusd::files::imageio::{self as io, Decoded, Header};
 use focusd::files::outputs::Outputs;
 use focusd::files::FileError;
@@ -20,7 +23,8 @@ pub struct FuseArgs {
     /// Output image; the format follows the extension (.jpg, .png, .tif).
     #[arg(short, long, value_name = "OUT")]
     pub output: PathBuf,
-    /// Input frames, nearest focus first (JPEG, PNG or TIFF, 8 or 16 bit).
+    /// Input frames, nearest focus first (JPEG, PNG or TIFF, 8 or 16 bit; or raw DNGs,
+    /// developed as focusd develops its camera's raw frames).
     ///
     /// The fuse checks that order on the stack's occlusion edges: where a near object overlaps a
     /// far one, the frame focused on the near object shows their edge crisp, the frame focused
@@ -94,11 +98,17 @@ pub fn run(a: &FuseArgs) -> Result<()> {
     let outs = Outputs::check(&outputs, &inputs)?;
     check_memory(a)?;
     let t0 = Instant::now();
-    let decoded: Vec<Decoded> = a
-        .frames
-        .par_iter()
-        .map(|p| io::load(p))
-        .collect::<Result<_, FileError>>()?;
+    let decoded: Vec<Decoded> = if a.frames.iter().any(|p| is_dng(p)) {
+        develop_dngs(&a.frames)?
+            .into_iter()
+            .map(Decoded::U8)
+            .collect()
+    } else {
+        a.frames
+            .par_iter()
+            .map(|p| io::load(p))
+            .collect::<Result<_, FileError>>()?
+    };
     let load_time = t0.elapsed();
     let sixteen = decoded.iter().any(|d| matches!(d, Decoded::U16(_)));
     if sixteen {
@@ -120,6 +130,32 @@ pub fn run(a: &FuseArgs) -> Result<()> {
     }
 }
 
+/// A raw DNG frame, by its extension.
+fn is_dng(p: &Path) -> bool {
+    p.extension().is_some_and(|e| e.eq_ignore_ascii_case("dng"))
+}
+
+/// DNG frames developed as the camera's raw takes are (one white balance for the stack, from
+/// the first frame), each turned upright. A stack is all DNG or none.
+fn develop_dngs(paths: &[PathBuf]) -> Result<Vec<Image<u8>>> {
+    if let Some(p) = paths.iter().find(|p| !is_dng(p)) {
+        bail!(
+            "{}: not a DNG, but {} is; a stack cannot mix raw and developed frames",
+            p.display(),
+            paths.iter().find(|p| is_dng(p)).expect("one is").display()
+        );
+    }
+    let read: Vec<dng::DngFrame> = paths
+        .par_iter()
+        .map(|p| dng::load(p))
+        .collect::<Result<_, FileError>>()?;
+    let turns: Vec<_> = read.iter().map(|d| d.orientation).collect();
+    let mut developer = StackDeveloper::default();
+    let frames = read.into_iter().map(|d| Frame::Raw(d.raw)).collect();
+    let pictures = capture::develop(frames, &mut |raw| developer.develop(raw))?;
+    Ok(pictures.iter().zip(turns).map(|(p, o)| o.turn(p)).collect())
+}
+
 /// Reads every frame's header and refuses, before any frame is decoded, frames of different
 /// sizes, a stack that mixes grey and colour frames (one kind would be gain-matched to the
 /// other, a patchwork), and a stack that does not fit the memory budget even in its leanest
@@ -128,7 +164,13 @@ fn check_memory(a: &FuseArgs) -> Result<()> {
     let headers: Vec<Header> = a
         .frames
         .iter()
-        .map(|p| io::probe(p))
+        .map(|p| {
+            if is_dng(p) {
+                dng::probe(p)
+            } else {
+                io::probe(p)
+            }
+        })
         .collect::<Result<_, FileError>>()?;
     let (w, h) = (headers[0].width, headers[0].height);
     for (d, p) in headers.iter().zip(&a.frames).skip(1) {

@@ -54,6 +54,8 @@ pub enum FileError {
     JpegSize { width: usize, height: usize },
     #[error(transparent)]
     Encode(#[from] image::ImageError),
+    #[error("cannot encode a DNG: {0}")]
+    Dng(#[from] tiff::TiffError),
     #[error(transparent)]
     Jpeg(#[from] jpeg_encoder::EncodingError),
     #[error("{path}: not a file path")]

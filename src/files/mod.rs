@@ -1,6 +1,7 @@
 //! Files in and out: reading what focusd parses without hanging on it or growing without
 //! bound, decoding and encoding images, and writing outputs so that nothing partial lands.
 pub mod bounded_read;
+pub mod dng;
 mod error;
 pub mod imageio;
 pub mod orientation;

@@ -50,24 +50,10 @@ pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf), ServiceError
     unreachable!("an unbounded range ends only by returning")
 }
 
-/// `YYYYMMDD-HHMMSS` of a Unix time, in UTC (Howard Hinnant's civil-from-days).
+/// `YYYYMMDD-HHMMSS` of a Unix time, in UTC.
 fn utc_stamp(secs: u64) -> String {
-    let (days, rest) = ((secs / 86_400) as i64, secs % 86_400);
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}{month:02}{day:02}-{:02}{:02}{:02}",
-        rest / 3600,
-        rest / 60 % 60,
-        rest % 60
-    )
+    let [year, month, day, hour, minute, second] = crate::base::civil::utc(secs);
+    format!("{year:04}{month:02}{day:02}-{hour:02}{minute:02}{second:02}")
 }
 
 #[cfg(test)]
