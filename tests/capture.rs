@@ -1,6 +1,6 @@
 //! The sweep with its motion gate, run on the committed replay bundles: exactly the shaken
 //! takes are rejected, exhausted retries do what the config says, and `focusd capture` turns a
-//! bundle into a fused image and a report.
+//! bundle (of pictures or of raw DNGs) into a fused image and a report.
 
 use focusd::backend::replay::{self, Bundle, BundleWriter};
 use focusd::capture::sweep::{sweep, OnExhausted, Sweep, SweepConfig, Unmonitored};
@@ -218,4 +218,33 @@ fn stuck_bundle_fails_capture_by_default_naming_the_plane() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("plane 3: all 3 takes were shaken"), "{err}");
     assert!(!out.exists());
+}
+
+/// A bundle of raw DNG takes replays as a camera's raw frames: the gate rejects the same
+/// shaken takes, each kept take is developed after the sweep, and `capture` fuses them.
+#[test]
+fn raw_bundle_develops_its_takes_after_the_sweep() {
+    let s = replay("raw", &config(6, OnExhausted::Fail)).unwrap();
+    let mut expected: Vec<(usize, usize, bool)> = (0..6).map(|p| (p, 0, true)).collect();
+    expected.splice(2..3, [(2, 0, false), (2, 1, false), (2, 2, true)]);
+    assert_eq!(verdicts(&s), expected);
+    // Each developed frame is its picture again, less what the mosaic does not sample.
+    for (i, frame) in s.frames.iter().enumerate() {
+        let picture = load(&bundle_dir("raw").join(format!("frame_{i:02}.jpg")));
+        let db = psnr(frame, &picture, 0);
+        assert!(db > 28.0, "frame {i}: {db:.2} dB against its picture");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.png");
+    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .args(["capture", "--replay"])
+        .arg(bundle_dir("raw"))
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let truth = load(&bundle_dir("raw").join("truth.png"));
+    let fused = psnr(&load(&out), &truth, 0);
+    assert!(fused > 24.0, "fused {fused:.2} dB against the truth");
 }

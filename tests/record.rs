@@ -38,6 +38,40 @@ fn verdicts(s: &Sweep) -> Vec<(usize, usize, bool, [f64; 3])> {
         .collect()
 }
 
+/// Raw takes are recorded raw: DNGs that replay to the same verdicts and develop to the same
+/// frames as the takes recorded (to a level: DNG keeps the colour matrix to four places).
+#[test]
+fn raw_takes_are_recorded_as_dngs() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let o = focusd(
+        &["record", "--replay"],
+        &[&bundle_dir("raw"), Path::new("-o"), &rec],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut names: Vec<String> = std::fs::read_dir(&rec)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.starts_with("plane"))
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 8, "{names:?}");
+    assert!(names.iter().all(|n| n.ends_with(".dng")), "{names:?}");
+    let original = replay(&bundle_dir("raw")).unwrap();
+    let again = replay(&rec).unwrap();
+    assert_eq!(verdicts(&again), verdicts(&original));
+    assert_eq!(again.frames.len(), 6);
+    for (a, b) in again.frames.iter().zip(&original.frames) {
+        let most = a
+            .data()
+            .iter()
+            .zip(b.data())
+            .map(|(x, y)| x.abs_diff(*y))
+            .max();
+        assert!(most <= Some(1), "{most:?}");
+    }
+}
+
 #[test]
 fn a_recorded_sweep_replays_to_the_same_verdicts_and_frames() {
     let dir = tempfile::tempdir().unwrap();

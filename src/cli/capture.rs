@@ -6,11 +6,9 @@ use super::progress::Bar;
 use anyhow::{Context, Result};
 use focusd::backend::replay::BundleWriter;
 use focusd::capture::record::Recording;
-use focusd::capture::{
-    self,
-    sweep::{sweep, PlaneReport, Unmonitored},
-};
-use focusd::develop::StackDeveloper;
+use focusd::capture::sweep::{sweep, PlaneReport, Unmonitored};
+use focusd::capture::Frame;
+use focusd::files::dng::{self, DngInfo};
 use focusd::files::imageio as io;
 use focusd::service::config::Config;
 use focusd::service::fuse_settings::QUALITY;
@@ -153,26 +151,37 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     let mut w = BundleWriter::create_new(&a.output, rig.camera.lens_range())
         .with_context(|| format!("{}: cannot create the bundle", a.output.display()))?
         .with_rotation(rig.camera.sensor_rotation());
-    // Raw takes are developed now, the sweep done, with one white balance for them all.
-    let (placed, frames): (Vec<_>, Vec<_>) = takes
-        .into_iter()
-        .map(|t| {
-            let exposure = (t.take.exposure_start, t.take.exposure_end);
-            ((t.plane, t.lens, exposure), t.take.frame)
-        })
-        .unzip();
-    let mut stack = StackDeveloper::default();
-    let pictures = capture::develop(frames, &mut |raw| stack.develop(raw))?;
-    for ((plane, lens, exposure), picture) in placed.iter().zip(&pictures) {
-        let png = io::encode(picture, image::ImageFormat::Png, 100)?;
-        w.add_take(*plane, *lens, *exposure, "png", &png)
+    // Raw takes stay raw (DNG, written now that the sweep is done), so a replay develops
+    // them as the camera's; pictures are written as PNG.
+    let taken = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()
+        .map(|d| d.as_secs());
+    let placed = takes.len();
+    for t in takes {
+        let exposure = (t.take.exposure_start, t.take.exposure_end);
+        let (extension, bytes) = match &t.take.frame {
+            Frame::Picture(p) => ("png", io::encode(p, image::ImageFormat::Png, 100)?),
+            Frame::Raw(r) => {
+                let info = DngInfo {
+                    model: "focusd record".into(),
+                    exposure: u64::try_from(exposure.1 - exposure.0)
+                        .ok()
+                        .map(std::time::Duration::from_nanos),
+                    taken,
+                    ..DngInfo::default()
+                };
+                ("dng", dng::encode(r, &info)?)
+            }
+        };
+        w.add_take(t.plane, t.lens, exposure, extension, &bytes)
             .with_context(|| format!("{}: cannot write a take", a.output.display()))?;
     }
     w.finish(&imu)
         .with_context(|| format!("{}: cannot write the bundle", a.output.display()))?;
     eprintln!(
         "focusd: recorded {} takes and {} IMU samples into {}",
-        placed.len(),
+        placed,
         imu.len(),
         a.output.display()
     );

@@ -98,7 +98,7 @@ pub fn run(a: &FuseArgs) -> Result<()> {
     let outs = Outputs::check(&outputs, &inputs)?;
     check_memory(a)?;
     let t0 = Instant::now();
-    let decoded: Vec<Decoded> = if a.frames.iter().any(|p| is_dng(p)) {
+    let decoded: Vec<Decoded> = if a.frames.iter().any(|p| dng::is_dng(p)) {
         develop_dngs(&a.frames)?
             .into_iter()
             .map(Decoded::U8)
@@ -130,19 +130,18 @@ pub fn run(a: &FuseArgs) -> Result<()> {
     }
 }
 
-/// A raw DNG frame, by its extension.
-fn is_dng(p: &Path) -> bool {
-    p.extension().is_some_and(|e| e.eq_ignore_ascii_case("dng"))
-}
-
 /// DNG frames developed as the camera's raw takes are (one white balance for the stack, from
 /// the first frame), each turned upright. A stack is all DNG or none.
 fn develop_dngs(paths: &[PathBuf]) -> Result<Vec<Image<u8>>> {
-    if let Some(p) = paths.iter().find(|p| !is_dng(p)) {
+    if let Some(p) = paths.iter().find(|p| !dng::is_dng(p)) {
         bail!(
             "{}: not a DNG, but {} is; a stack cannot mix raw and developed frames",
             p.display(),
-            paths.iter().find(|p| is_dng(p)).expect("one is").display()
+            paths
+                .iter()
+                .find(|p| dng::is_dng(p))
+                .expect("one is")
+                .display()
         );
     }
     let read: Vec<dng::DngFrame> = paths
@@ -165,7 +164,7 @@ fn check_memory(a: &FuseArgs) -> Result<()> {
         .frames
         .iter()
         .map(|p| {
-            if is_dng(p) {
+            if dng::is_dng(p) {
                 dng::probe(p)
             } else {
                 io::probe(p)

@@ -7,6 +7,7 @@
 
 use anyhow::{bail, Context, Result};
 use focusd::backend::replay::BundleWriter;
+use focusd::files::dng::{self, DngInfo};
 use focusd::files::imageio::encode;
 use focusd::files::imageio::load_rgb8;
 use focusd::files::outputs::{save_image, write_atomic};
@@ -81,6 +82,10 @@ pub struct SimulateArgs {
     /// `P:N:stuck` leaves out the steady take, so the reshoots run out. Repeatable.
     #[arg(long, value_name = "P:N[:stuck]", requires = "bundle")]
     pub shake: Vec<String>,
+    /// With --bundle: write the takes as raw DNGs (10-bit GRBG mosaics over a black level of
+    /// 64), which a replay develops as the camera's raw frames.
+    #[arg(long, requires = "bundle")]
+    pub raw: bool,
     /// JPEG quality of the frames (1..=100).
     #[arg(long, default_value_t = 92)]
     pub quality: u32,
@@ -366,6 +371,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         generator: format!("focusd simulate {}", env!("CARGO_PKG_VERSION")),
         command: command_line(&p, args.quality, dir)
             + if args.bundle { " --bundle" } else { "" }
+            + if args.raw { " --raw" } else { "" }
             + &args
                 .shake
                 .iter()
@@ -405,7 +411,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     write_atomic(&dir.join("stack.json"), &json)?;
 
     if args.bundle {
-        write_bundle(&p, stack, &names, &shakes, dir, quality)?;
+        write_bundle(&p, stack, &names, &shakes, dir, quality, args.raw)?;
     }
 
     let mut stale: Vec<String> = fs::read_dir(dir)
@@ -445,7 +451,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
 }
 
 /// The frames as the takes of a sweep: a steady take is its frame file, a shaken take a
-/// smeared copy of it.
+/// smeared copy of it; with `raw`, each take is the DNG of its picture mosaicked.
 fn write_bundle(
     p: &SimParams,
     stack: &sim::SimStack,
@@ -453,12 +459,24 @@ fn write_bundle(
     shakes: &[Shake],
     dir: &Path,
     quality: u8,
+    raw: bool,
 ) -> Result<()> {
     let (takes, imu) = bundle::plan(p.planes, shakes, p.seed);
     let mut w = BundleWriter::create(dir, bundle::LENS_RANGE)?;
+    let dng_info = DngInfo {
+        model: "focusd simulate".into(),
+        ..DngInfo::default()
+    };
     for t in &takes {
-        if t.shaken {
-            let smeared = bundle::smear(&stack.frames[t.plane], SHAKE_SMEAR_PX);
+        let frame = &stack.frames[t.plane];
+        let smeared = t.shaken.then(|| bundle::smear(frame, SHAKE_SMEAR_PX));
+        if raw {
+            let bytes = dng::encode(
+                &bundle::raw_take(smeared.as_ref().unwrap_or(frame)),
+                &dng_info,
+            )?;
+            w.add_take(t.plane, t.lens, t.exposure, "dng", &bytes)
+        } else if let Some(smeared) = smeared {
             let bytes = encode(&smeared, image::ImageFormat::Jpeg, quality)?;
             w.add_take(t.plane, t.lens, t.exposure, "jpg", &bytes)
         } else {

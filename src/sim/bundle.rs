@@ -7,6 +7,8 @@
 
 use super::rng::Rng;
 use crate::capture::{ImuSample, Nanos, Sensor};
+use crate::develop::raw::Packing;
+use crate::develop::{decode, BayerOrder, Mosaic, RawFrame, IDENTITY};
 use crate::stack::image::Image;
 
 /// RNG stream of the IMU trace (the stack's own streams are below 1000 + frames).
@@ -21,6 +23,34 @@ const FRAME_INTERVAL: Nanos = 50_000_000;
 const SAMPLE_INTERVAL: Nanos = 5_000_000;
 /// Lens range of the simulated dw9714.
 pub const LENS_RANGE: (i32, i32) = (0, 1023);
+
+/// A raw take's sensor: 10-bit samples over a black level of 64 in a GRBG mosaic, with no
+/// colour data (camera RGB is linear sRGB), as the PinePhone Pro's imx258 delivers.
+const RAW_ORDER: BayerOrder = BayerOrder::Grbg;
+const RAW_BLACK: u16 = 64;
+const RAW_WHITE: u16 = 1023;
+
+/// A rendered frame as the raw take a sensor would have recorded: its linear light sampled
+/// through the Bayer mosaic and quantised to [`RAW_WHITE`] above [`RAW_BLACK`].
+pub fn raw_take(picture: &Image<u8>) -> RawFrame {
+    let m = Mosaic::sample(&decode(picture), RAW_ORDER);
+    let span = f32::from(RAW_WHITE - RAW_BLACK);
+    let bytes = m
+        .data
+        .iter()
+        .flat_map(|&v| ((v.clamp(0.0, 1.0) * span).round() as u16 + RAW_BLACK).to_le_bytes())
+        .collect();
+    RawFrame {
+        bytes,
+        packing: Packing::Le10,
+        stride: m.width * 2,
+        width: m.width,
+        height: m.height,
+        order: RAW_ORDER,
+        black_level: u32::from(RAW_BLACK),
+        matrix: IDENTITY,
+    }
+}
 
 /// One take of the synthetic sweep.
 #[derive(Clone, Debug, PartialEq)]

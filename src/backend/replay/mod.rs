@@ -7,8 +7,9 @@
 pub mod bundle;
 pub mod faults;
 pub mod preview;
+mod take;
 
-use crate::capture::{Camera, CaptureError, Clock, Frame, Imu, ImuSample, Nanos, Take};
+use crate::capture::{Camera, CaptureError, Clock, Imu, ImuSample, Nanos, Take};
 pub use bundle::{Bundle, BundleError, BundleWriteError, BundleWriter};
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::sync::Arc;
@@ -136,8 +137,7 @@ impl Camera for ReplayCamera {
             .bundle
             .file(&entry.image)
             .map_err(|e| bundle_error(e.to_string()))?;
-        let image = crate::files::imageio::load_rgb8(&path)
-            .map_err(|e| bundle_error(crate::base::clip::chain(&e)))?;
+        let frame = take::load(&path).map_err(bundle_error)?;
         let now = self.clock.now();
         if entry.exposure_start_ns < now {
             tracing::warn!(
@@ -150,7 +150,7 @@ impl Camera for ReplayCamera {
         }
         self.clock.advance_to(entry.exposure_end_ns);
         Ok(Take {
-            frame: Frame::Picture(image),
+            frame,
             exposure_start: entry.exposure_start_ns,
             exposure_end: entry.exposure_end_ns,
         })

@@ -14,6 +14,13 @@ pub use write::{encode, DngInfo};
 
 use crate::develop::BayerOrder;
 use nalgebra::Matrix3;
+use std::path::Path;
+
+/// Whether `path` names a DNG, by its extension (any case).
+pub fn is_dng(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("dng"))
+}
 
 /// The TIFF and DNG tags focusd writes or reads, by number.
 mod tag {
