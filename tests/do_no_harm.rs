@@ -33,16 +33,7 @@ fn strong(scene: SceneKind, seed: u64) -> SimParams {
 /// registered on.
 fn photo(name: &str) -> Arc<Photo> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("sim-data/photos/{name}.png"));
-    let img = load_rgb8(&path).unwrap();
-    Arc::new(Photo {
-        width: img.width(),
-        height: img.height(),
-        rgb: img
-            .data()
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]].map(|v| v as f32 / 255.0))
-            .collect(),
-    })
+    Arc::new(Photo::from_rgb8(&load_rgb8(&path).unwrap()))
 }
 
 /// The 99th percentile displacement of every frame's local field (0 where it kept none).
