@@ -228,12 +228,24 @@ fn registration_reports_each_frame_of_each_phase_and_stops_when_cancelled() {
     assert!(cancelled.done.load(Ordering::SeqCst) < 3 * n);
 }
 
+/// The layered stack with 6 px of parallax at 1600×1200, 8 planes: at 640×480 each pair of
+/// neighbours moves less against the defocus they differ by than a phone's frames do, and a
+/// change of defocus explains it as well as the motion (see `register::local`).
+fn large_parallax() -> SimParams {
+    SimParams {
+        width: 1600,
+        height: 1200,
+        planes: 8,
+        ..layered(23, 6.0)
+    }
+}
+
 #[test]
 fn local_fields_follow_parallax_where_frames_are_sharp() {
     // 6 px of parallax: the nearest frames, sharp on the near objects, move most against the
     // background; their local fields take the error where they are sharp well below the
     // affine's.
-    let e = local_effect(&layered(23, 6.0));
+    let e = local_effect(&large_parallax());
     let near = e.iter().find(|f| f.0 == 0).unwrap();
     assert!(near.3, "{e:.2?}");
     assert!(near.1 < 0.75 * near.2 && near.1 < 1.5, "{e:.2?}");
@@ -252,7 +264,7 @@ fn local_fields_follow_parallax_where_frames_are_sharp() {
 
 #[test]
 fn fusion_with_local_registration_beats_the_affines_alone_under_parallax() {
-    let p = layered(23, 6.0);
+    let p = large_parallax();
     let s = render(&p);
     let fused = |local: bool| {
         let mut params = FuseParams {

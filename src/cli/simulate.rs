@@ -274,15 +274,7 @@ pub fn command_line(p: &SimParams, quality: u32, dir: &Path) -> String {
 /// The photograph `--photo` names, as the simulator's display values.
 fn load_photo(path: &Path) -> Result<Photo> {
     let img = load_rgb8(path).with_context(|| format!("--photo {}", path.display()))?;
-    Ok(Photo {
-        width: img.width(),
-        height: img.height(),
-        rgb: img
-            .data()
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]].map(|v| v as f32 / 255.0))
-            .collect(),
-    })
+    Ok(Photo::from_rgb8(&img))
 }
 
 pub fn frame_name(i: usize) -> String {

@@ -465,6 +465,19 @@ pub struct Photo {
 }
 
 impl Photo {
+    /// An 8-bit RGB image as the simulator's display values.
+    pub fn from_rgb8(img: &crate::stack::Image<u8>) -> Photo {
+        Photo {
+            width: img.width(),
+            height: img.height(),
+            rgb: img
+                .data()
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]].map(|v| v as f32 / 255.0))
+                .collect(),
+        }
+    }
+
     /// The photograph's colour at (u, v) in its own pixels: bilinear, mirrored beyond its edges,
     /// so a small crop covers any surface without a seam.
     pub fn sample(&self, u: f64, v: f64) -> Rgb {

@@ -33,7 +33,9 @@ const FINE_REACH: f32 = 1.5;
 pub enum Select<'a> {
     MaxContrast,
     /// Per-pixel frame index, the most pyramid levels to use, and the frames' focus order if
-    /// farther frames are to be kept out of nearer labels' finest band (see the module's note).
+    /// farther frames are to be kept out of nearer labels' finest band (see the module's note):
+    /// only an order the occlusion edges told, since on a guessed one the rule would keep the
+    /// nearer frame out instead, and a stack without such edges has no spill to keep out.
     Labels(&'a [u8], usize, Option<Order>),
 }
 
@@ -92,8 +94,8 @@ impl FrameBuffers {
                 let half = gaussian_half(FINE_REACH);
                 let (w, h) = (r.width(), r.height());
                 blur_rows_into(r.data_mut(), w, h, &half, || PlaneRows(m0));
-                if let Some(order) = order {
-                    keep_out_of_nearer(r.data_mut(), labels, *order, i, frames);
+                if let Some(order) = order.filter(|o| *o != Order::Unknown) {
+                    keep_out_of_nearer(r.data_mut(), labels, order, i, frames);
                 }
             }
         }
@@ -478,6 +480,7 @@ mod tests {
         // Without the order, or with frame 1 the nearer, its texture is chosen there.
         assert!(texture(None) >= 20);
         assert!(texture(Some(Order::FarthestFirst)) >= 20);
+        assert!(texture(Some(Order::Unknown)) >= 20);
     }
 
     #[test]

@@ -11,9 +11,13 @@
 //! field follow a near object rather than a smooth average over the frame; a ridge relative to
 //! the window's texture keeps the coarser level's estimate where there is no texture to measure.
 //!
-//! Neighbouring frames also differ by defocus, which a flow mistakes for motion of a fraction
-//! of a pixel; on a tripod stack that costs more than parallax gains. So each pair's flow is
-//! kept only where it removes a clear share of the residual ([`trust`]), displacements under
+//! Neighbouring frames also differ by defocus, which a flow mistakes for motion (a fraction of a
+//! pixel on textured ground, several pixels at a dark occluder under strong defocus); on a tripod
+//! stack that costs more than parallax gains. So each pair's flow is kept only where it removes a
+//! clear share of the residual ([`trust`]), and the chained field only where some pair of the
+//! chain surely moved: where its flow also removes a clear share of the residual a change of
+//! defocus leaves (the sharper frame blurred). Per-pair parallax a change of defocus could
+//! explain still adds up along the chain where a nearer pair moved surely; displacements under
 //! half a pixel are dropped ([`DEAD`]), and a field whose displacements stay below
 //! [`MIN_MOTION_PX`] is dropped whole: on a stack without parallax the affine stands alone, and
 //! the output is what it was without local registration.
@@ -55,6 +59,10 @@ const RIDGE: f32 = 3.0;
 /// The flow must remove at least this share of the windowed residual to be trusted at all, and
 /// twice it to be trusted fully (see [`trust`]).
 const EXPLAINED: f32 = 0.25;
+/// Blurs (working-level σ, px) either frame of a pair may take to explain their difference as a
+/// change of defocus before a flow is trusted (see [`trust`]): a ladder from a fraction of a
+/// pixel to the strongest defocus change between neighbouring frames.
+const DEFOCUS: [f32; 4] = [0.7, 1.4, 2.8, 5.6];
 /// Local displacements up to `DEAD.0` full-resolution pixels are dropped and those beyond
 /// `DEAD.1` kept whole (a ramp between): blur differences between neighbours fake motion of
 /// a fraction of a pixel, which costs a tripod stack more than it gains.
@@ -206,6 +214,8 @@ impl Pyramid {
 pub struct Chain {
     prev: Pyramid,
     flow: Flow,
+    /// Per pixel, the most any pair of the chain so far was surely moved there (see [`trust`]).
+    sure: Vec<f32>,
     /// Pyramid level the planes are at.
     level: usize,
 }
@@ -216,6 +226,7 @@ impl Chain {
         Chain {
             prev: Pyramid::new(&Warped::new(reference, &Affine::IDENTITY, 0).0),
             flow: Flow::zero(reference.width(), reference.height()),
+            sure: vec![0.0; reference.width() * reference.height()],
             level,
         }
     }
@@ -224,8 +235,12 @@ impl Chain {
     /// resolution), or None where it stays within [`MIN_MOTION_PX`] of the affine.
     pub fn next(&mut self, frame: Warped, ref_to_frame: &Affine) -> Option<OffsetField> {
         let next = Pyramid::new(&frame.0);
-        let d = flow(&self.prev, &next);
+        let (d, sure) = flow(&self.prev, &next);
         self.flow = self.flow.chain(&d);
+        self.sure
+            .iter_mut()
+            .zip(&sure)
+            .for_each(|(s, n)| *s = s.max(*n));
         self.prev = next;
         let s = (1u64 << self.level) as f32;
         // Frame point = A(x + g) = A(x) + L·g for the affine's linear part L.
@@ -236,8 +251,9 @@ impl Chain {
             .dx
             .iter()
             .zip(&self.flow.dy)
-            .map(|(&x, &y)| {
-                let (x, y) = (s * x, s * y);
+            .zip(&self.sure)
+            .map(|((&x, &y), &sure)| {
+                let (x, y) = (s * sure * x, s * sure * y);
                 let k = ((x.hypot(y) - DEAD.0) / (DEAD.1 - DEAD.0)).clamp(0.0, 1.0);
                 let (x, y) = (k * x, k * y);
                 (l00 * x + l01 * y, l10 * x + l11 * y)
@@ -255,7 +271,7 @@ impl Chain {
 
 /// Coarse-to-fine windowed Lucas–Kanade flow taking `a`'s content to where it shows in `b`
 /// (pyramids of one size).
-fn flow(a: &Pyramid, b: &Pyramid) -> Flow {
+fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
     let (pa, pb) = (&a.0, &b.0);
     let top = pa.len() - 1;
     let mut f = Flow::zero(pa[top].width(), pa[top].height());
@@ -270,17 +286,21 @@ fn flow(a: &Pyramid, b: &Pyramid) -> Flow {
             }
         }
     }
-    trust(&pa[0], &pb[0], &mut f);
-    f
+    let sure = trust(&pa[0], &pb[0], &mut f);
+    (f, sure)
 }
 
-/// Keeps the flow only where it explains the pair clearly better than no local motion: the
-/// windowed squared residual through the flow against that through the affine alone. Where
-/// neighbouring frames differ by defocus, noise or occlusion rather than motion, a flow fitted
-/// to them only wanders; there the affine stands.
-fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
+/// Keeps the flow only where it explains the pair clearly better than no local motion (the
+/// windowed squared residual through the flow against that through the affine alone), and
+/// returns where the pair surely moved: where the flow also explains it clearly better than a
+/// change of defocus, the least residual through the affine alone with the locally sharper frame
+/// (more high-passed energy in the window) blurred by any of [`DEFOCUS`]. A change of defocus
+/// between neighbours moves an edge's profile, which a flow reads as motion; against the frames
+/// as they are that flow wins, against the sharper frame blurred as the other is it does not.
+/// Blurring the blurrier frame is no model of defocus and would also explain parallax away.
+fn trust(a: &Plane, b: &Plane, f: &mut Flow) -> Vec<f32> {
     let (w, h) = (a.width(), a.height());
-    let sq = |moved: bool| {
+    let sq = |a: &Plane, b: &Plane, moved: bool| {
         let data: Vec<f32> = (0..w * h)
             .into_par_iter()
             .map(|i| {
@@ -298,20 +318,75 @@ fn trust(a: &Plane, b: &Plane, f: &mut Flow) {
                 }
             })
             .collect();
-        pool(&Plane::from_vec(w, h, 1, data))
+        pool(&Plane::from_vec(w, h, 1, data)).into_data()
     };
-    let (still, moved) = rayon::join(|| sq(false), || sq(true));
-    let gain = EXPLAINED;
+    // Where each frame is the sharper of the pair: its pooled high-passed energy is the larger.
+    let energy = |p: &Plane| {
+        let data = p
+            .data()
+            .iter()
+            .map(|v| if v.is_nan() { 0.0 } else { v * v });
+        pool(&Plane::from_vec(w, h, 1, data.collect())).into_data()
+    };
+    let (ea, eb) = rayon::join(|| energy(a), || energy(b));
+    // The frames as they are through the flow, against the least residual without it of the
+    // frames as they are and of the locally sharper one blurred by a rung of the ladder.
+    let (plain, moved) = rayon::join(|| sq(a, b, false), || sq(a, b, true));
+    let ladder = DEFOCUS
+        .par_iter()
+        .map(|&s| {
+            let (ra, rb) = rayon::join(
+                || sq(&blur_nan(a, s), b, false),
+                || sq(a, &blur_nan(b, s), false),
+            );
+            (0..w * h)
+                .map(|i| if ea[i] >= eb[i] { ra[i] } else { rb[i] })
+                .collect::<Vec<f32>>()
+        })
+        .reduce(
+            || plain.clone(),
+            |x, y| x.iter().zip(&y).map(|(p, q)| p.min(*q)).collect(),
+        );
+    // Share of the residual the flow removes, mapped to a weight 0..1.
+    let weight = |e0: f32, e1: f32| {
+        let removed = if e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
+        ((removed - EXPLAINED) / EXPLAINED).clamp(0.0, 1.0)
+    };
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
-        .zip(still.data().par_iter().zip(moved.data()))
+        .zip(plain.par_iter().zip(&moved))
         .for_each(|((dx, dy), (e0, e1))| {
-            // Share of the residual the flow removes, mapped to a weight 0..1.
-            let removed = if *e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
-            let k = ((removed - gain) / gain).clamp(0.0, 1.0);
+            let k = weight(*e0, *e1);
             *dx *= k;
             *dy *= k;
         });
+    ladder
+        .par_iter()
+        .zip(&moved)
+        .map(|(e0, e1)| weight(*e0, *e1))
+        .collect()
+}
+
+/// Gaussian blur with NaN (outside the frame) kept out of it and kept NaN.
+fn blur_nan(p: &Plane, sigma: f32) -> Plane {
+    let (valid, filled) = masked(p);
+    let (bv, bf) = rayon::join(
+        || gaussian_blur(&valid, sigma),
+        || gaussian_blur(&filled, sigma),
+    );
+    let data = p
+        .data()
+        .iter()
+        .zip(bv.data().iter().zip(bf.data()))
+        .map(|(v, (n, s))| {
+            if v.is_nan() || *n <= 1e-3 {
+                f32::NAN
+            } else {
+                s / n
+            }
+        })
+        .collect();
+    Plane::from_vec(p.width(), p.height(), 1, data)
 }
 
 /// `reduce` with NaN (outside the frame) kept out: outside pixels count as 0 and any output
@@ -456,7 +531,7 @@ mod tests {
         let a = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64, y as f64));
         let b = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64 - 1.3, y as f64 + 0.6));
         let (a, b) = (Pyramid::new(&a), Pyramid::new(&b));
-        let f = flow(&a, &b);
+        let (f, _) = flow(&a, &b);
         for i in [60 * 160 + 80, 30 * 160 + 40, 90 * 160 + 120] {
             assert!(
                 (f.dx[i] - 1.3).abs() < 0.05 && (f.dy[i] + 0.6).abs() < 0.05,
@@ -465,7 +540,7 @@ mod tests {
                 f.dy[i]
             );
         }
-        let still = flow(&a, &a);
+        let (still, _) = flow(&a, &a);
         assert!(still.dx.iter().chain(&still.dy).all(|d| d.abs() < 1e-3));
     }
 
