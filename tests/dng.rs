@@ -273,11 +273,11 @@ fn fuse_develops_a_dng_stack() {
     }
     let (a, b) = (load(&from_dng), load(&from_png));
     assert_eq!((a.width(), a.height()), (320, 240), "upright");
-    // Not bit-exact: ColorMatrix1 is stored in ten-thousandths, so the development matrix read
-    // back is the identity within 1e-4.
+    // Not bit-exact: ColorMatrix1 is stored in millionths, so the development matrix read back
+    // is the identity within about 1e-6 and a rare pixel lands one level off.
     let p = focusd::stack::psnr(&a, &b, 0);
     assert!(
-        p > 50.0,
+        p > 80.0,
         "the DNG stack fused otherwise than its developed frames: {p:.1} dB"
     );
 

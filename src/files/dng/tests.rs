@@ -164,7 +164,7 @@ fn what_focusd_writes_reads_back_exactly() {
                 .flatten()
                 .zip(f.matrix.iter().flatten())
             {
-                assert!((a - b).abs() < 1e-3, "{:?}", back.raw.matrix);
+                assert!((a - b).abs() < 1e-5, "{:?}", back.raw.matrix);
             }
         }
     }
