@@ -190,9 +190,13 @@ fn high_pass(p: &Plane) -> Plane {
 }
 
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
-/// [`flow`] matches. Made once per frame: a frame is the far side of one pair of the chain and
+/// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`], what [`trust`]
+/// compares against. Made once per frame: a frame is the far side of one pair of the chain and
 /// the near side of the next.
-struct Pyramid(Vec<Plane>);
+struct Pyramid {
+    levels: Vec<Plane>,
+    ladder: Vec<Plane>,
+}
 
 impl Pyramid {
     fn new(p: &Plane) -> Pyramid {
@@ -205,7 +209,12 @@ impl Pyramid {
             let reduced = reduce_nan(last);
             levels.push(reduced);
         }
-        Pyramid(levels.iter().map(high_pass).collect())
+        let levels: Vec<Plane> = levels.iter().map(high_pass).collect();
+        let ladder = DEFOCUS
+            .par_iter()
+            .map(|&s| blur_nan(&levels[0], s))
+            .collect();
+        Pyramid { levels, ladder }
     }
 }
 
@@ -272,7 +281,7 @@ impl Chain {
 /// Coarse-to-fine windowed Lucas–Kanade flow taking `a`'s content to where it shows in `b`
 /// (pyramids of one size).
 fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
-    let (pa, pb) = (&a.0, &b.0);
+    let (pa, pb) = (&a.levels, &b.levels);
     let top = pa.len() - 1;
     let mut f = Flow::zero(pa[top].width(), pa[top].height());
     for k in (0..=top).rev() {
@@ -286,7 +295,7 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
             }
         }
     }
-    let sure = trust(&pa[0], &pb[0], &mut f);
+    let sure = trust((&pa[0], &a.ladder), (&pb[0], &b.ladder), &mut f);
     (f, sure)
 }
 
@@ -298,7 +307,8 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
 /// between neighbours moves an edge's profile, which a flow reads as motion; against the frames
 /// as they are that flow wins, against the sharper frame blurred as the other is it does not.
 /// Blurring the blurrier frame is no model of defocus and would also explain parallax away.
-fn trust(a: &Plane, b: &Plane, f: &mut Flow) -> Vec<f32> {
+/// Each frame comes with its ladder, as [`Pyramid`] holds it.
+fn trust((a, la): (&Plane, &[Plane]), (b, lb): (&Plane, &[Plane]), f: &mut Flow) -> Vec<f32> {
     let (w, h) = (a.width(), a.height());
     let sq = |a: &Plane, b: &Plane, moved: bool| {
         let data: Vec<f32> = (0..w * h)
@@ -332,13 +342,11 @@ fn trust(a: &Plane, b: &Plane, f: &mut Flow) -> Vec<f32> {
     // The frames as they are through the flow, against the least residual without it of the
     // frames as they are and of the locally sharper one blurred by a rung of the ladder.
     let (plain, moved) = rayon::join(|| sq(a, b, false), || sq(a, b, true));
-    let ladder = DEFOCUS
+    let ladder = la
         .par_iter()
-        .map(|&s| {
-            let (ra, rb) = rayon::join(
-                || sq(&blur_nan(a, s), b, false),
-                || sq(a, &blur_nan(b, s), false),
-            );
+        .zip(lb)
+        .map(|(blurred_a, blurred_b)| {
+            let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
             (0..w * h)
                 .map(|i| if ea[i] >= eb[i] { ra[i] } else { rb[i] })
                 .collect::<Vec<f32>>()
