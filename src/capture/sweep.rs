@@ -141,7 +141,8 @@ pub struct Sweep {
 
 /// Reports the sweep's progress and asks whether to go on.
 pub trait Monitor {
-    /// Planes done of `total`, and the stage (`WaitingStill`, `Sweeping`).
+    /// Steps done of `total` (planes, or raw frames developed), and the stage (`WaitingStill`,
+    /// `Sweeping`, `Developing`).
     fn progress(&self, stage: Stage, done: usize, total: usize);
     fn cancelled(&self) -> bool;
 }
@@ -181,12 +182,26 @@ pub fn sweep_developing(
     monitor: &dyn Monitor,
     develop: &mut dyn FnMut(&RawFrame) -> Result<Image<u8>, String>,
 ) -> Result<Sweep, CaptureError> {
+    let (takes, sweep) = sweep_takes(camera, imu, clock, cfg, monitor)?;
+    let frames = takes.into_iter().map(|t| t.frame).collect();
+    let frames = super::develop(frames, monitor, &mut |_, raw| develop(raw))?;
+    Ok(Sweep { frames, ..sweep })
+}
+
+/// [`sweep`] without the development: the chosen take of each plane as it came (raw ones
+/// still mosaics), and the sweep's report with no frames.
+pub fn sweep_takes(
+    camera: &mut dyn Camera,
+    imu: &mut dyn Imu,
+    clock: &dyn Clock,
+    cfg: &SweepConfig,
+    monitor: &dyn Monitor,
+) -> Result<(Vec<Take>, Sweep), CaptureError> {
     let result = run(camera, imu, clock, cfg, monitor);
     let released = camera.release();
     let (takes, sweep) = result?;
     released?;
-    let frames = super::develop(takes.into_iter().map(|t| t.frame).collect(), develop)?;
-    Ok(Sweep { frames, ..sweep })
+    Ok((takes, sweep))
 }
 
 fn run(
