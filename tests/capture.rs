@@ -237,19 +237,26 @@ fn raw_bundle_develops_its_takes_after_the_sweep() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.png");
-    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
-        .args(["capture", "--replay"])
-        .arg(bundle_dir("raw"))
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    capture_raw(&[], &out);
     let truth = load(&bundle_dir("raw").join("truth.png"));
     let fused = psnr(&load(&out), &truth, 0);
     assert!(fused > 24.0, "fused {fused:.2} dB against the truth");
     // By default the raw takes are not kept: the picture is all there is.
     assert_eq!(names(dir.path()), ["out.png"]);
+}
+
+/// `focusd capture ARGS --replay` of the raw bundle into `out`, which must succeed.
+fn capture_raw(args: &[&Path], out: &Path) {
+    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .arg("capture")
+        .args(args)
+        .arg("--replay")
+        .arg(bundle_dir("raw"))
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
 /// The files in `dir`, sorted.
@@ -271,17 +278,7 @@ fn keep_raw_keeps_each_kept_take_beside_the_picture_as_a_dng() {
     let config = dir.path().join("focusd.toml");
     std::fs::write(&config, "[output]\nkeep_raw = true\n").unwrap();
     let out = dir.path().join("stack.jpg");
-    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
-        .arg("capture")
-        .arg("--config")
-        .arg(&config)
-        .arg("--replay")
-        .arg(bundle_dir("raw"))
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    capture_raw(&[Path::new("--config"), &config], &out);
     let kept: Vec<String> = (0..6).map(|p| format!("stack-raw-{p:02}.dng")).collect();
     let mut expected = vec!["focusd.toml".to_string(), "stack.jpg".to_string()];
     expected.extend(kept.iter().cloned());

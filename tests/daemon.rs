@@ -546,16 +546,7 @@ fn developing_is_a_stage_that_is_busy_and_cancels_leaving_nothing() {
         let (finished, failed) = subscribe(&proxy).await;
         let mut progress = proxy.receive_progress().await.unwrap();
         let job = proxy.capture().await.unwrap();
-        let mut developing = Vec::new();
-        while let Some(s) = progress.next().await {
-            let a = s.args().unwrap();
-            if a.stage == "developing" {
-                developing.push((a.done, a.total));
-                if a.done == 3 {
-                    break;
-                }
-            }
-        }
+        let developing = developing_progress(&mut progress, &job, Some(3)).await;
         drop(progress);
         assert_eq!(developing, [(0, 6), (1, 6), (2, 6), (3, 6)]);
         assert_eq!(proxy.state().await.unwrap(), "developing");
@@ -574,16 +565,7 @@ fn developing_is_a_stage_that_is_busy_and_cancels_leaving_nothing() {
         let (finished, failed) = subscribe(&proxy).await;
         let mut progress = proxy.receive_progress().await.unwrap();
         let job = proxy.capture().await.unwrap();
-        let mut developing = Vec::new();
-        while let Some(s) = progress.next().await {
-            let a = s.args().unwrap();
-            if a.job == job && a.stage == "developing" {
-                developing.push((a.done, a.total));
-            }
-            if a.job == job && a.stage != "developing" && !developing.is_empty() {
-                break;
-            }
-        }
+        let developing = developing_progress(&mut progress, &job, None).await;
         // Unread, the stream would hold up the connection, and the Finished signal with it.
         drop(progress);
         assert_eq!(developing, (0..=6).map(|i| (i, 6)).collect::<Vec<_>>());
@@ -603,4 +585,31 @@ fn developing_is_a_stage_that_is_busy_and_cancels_leaving_nothing() {
         .unwrap();
         assert!(r["timings_ms"]["develop"].as_f64().unwrap() > 0.0, "{r}");
     });
+}
+
+/// The (done, total) of `job`'s `developing` Progress signals, up to the one with done `until`,
+/// or (`None`) up to the first of a later stage.
+async fn developing_progress(
+    progress: &mut focusd::service::proxy::ProgressStream,
+    job: &str,
+    until: Option<u32>,
+) -> Vec<(u32, u32)> {
+    let mut seen = Vec::new();
+    while let Some(s) = progress.next().await {
+        let a = s.args().unwrap();
+        if a.job != job {
+            continue;
+        }
+        if a.stage != "developing" {
+            if seen.is_empty() {
+                continue;
+            }
+            break;
+        }
+        seen.push((a.done, a.total));
+        if Some(a.done) == until {
+            break;
+        }
+    }
+    seen
 }

@@ -199,7 +199,7 @@ impl CaptureError {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::sweep::Monitor;
     use super::*;
     use crate::develop::{BayerOrder, RawLayout, IDENTITY};
@@ -221,7 +221,8 @@ mod tests {
         }
     }
 
-    fn raw() -> Frame {
+    /// A 4×4 RGGB mosaic of grey.
+    pub(crate) fn raw_frame() -> RawFrame {
         let layout = RawLayout {
             packing: crate::develop::raw::Packing::Bits8,
             width: 4,
@@ -231,7 +232,11 @@ mod tests {
             black_level: 0,
             matrix: IDENTITY,
         };
-        Frame::Raw(RawFrame::copy(&[90; 16], layout).expect("raw"))
+        RawFrame::copy(&[90; 16], layout).expect("raw")
+    }
+
+    fn raw() -> Frame {
+        Frame::Raw(raw_frame())
     }
 
     #[test]
