@@ -5,6 +5,7 @@
 use focusd::backend::replay::{self, Bundle, BundleWriter};
 use focusd::capture::sweep::{sweep, OnExhausted, Sweep, SweepConfig, Unmonitored};
 use focusd::capture::{CaptureError, ImuSample, Sensor};
+use focusd::files::dng;
 use focusd::stack::psnr;
 use std::path::Path;
 use std::process::Command;
@@ -236,15 +237,80 @@ fn raw_bundle_develops_its_takes_after_the_sweep() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.png");
-    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
-        .args(["capture", "--replay"])
-        .arg(bundle_dir("raw"))
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    capture_raw(&[], &out);
     let truth = load(&bundle_dir("raw").join("truth.png"));
     let fused = psnr(&load(&out), &truth, 0);
     assert!(fused > 24.0, "fused {fused:.2} dB against the truth");
+    // By default the raw takes are not kept: the picture is all there is.
+    assert_eq!(names(dir.path()), ["out.png"]);
+}
+
+/// `focusd capture ARGS --replay` of the raw bundle into `out`, which must succeed.
+fn capture_raw(args: &[&Path], out: &Path) {
+    let o = Command::new(env!("CARGO_BIN_EXE_focusd"))
+        .arg("capture")
+        .args(args)
+        .arg("--replay")
+        .arg(bundle_dir("raw"))
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// The files in `dir`, sorted.
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// `[output] keep_raw = true`: the take the gate kept of each plane lands beside the picture
+/// as a DNG named after it, holding exactly the mosaic the camera gave, as focusd's reader and
+/// LibRaw's read it.
+#[test]
+fn keep_raw_keeps_each_kept_take_beside_the_picture_as_a_dng() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("focusd.toml");
+    std::fs::write(&config, "[output]\nkeep_raw = true\n").unwrap();
+    let out = dir.path().join("stack.jpg");
+    capture_raw(&[Path::new("--config"), &config], &out);
+    let kept: Vec<String> = (0..6).map(|p| format!("stack-raw-{p:02}.dng")).collect();
+    let mut expected = vec!["focusd.toml".to_string(), "stack.jpg".to_string()];
+    expected.extend(kept.iter().cloned());
+    expected.sort();
+    assert_eq!(names(dir.path()), expected);
+    let libraw = common::libraw::libraw();
+    for (plane, name) in kept.iter().enumerate() {
+        // Plane 2's first two takes were shaken; its third was kept.
+        let take = if plane == 2 { 2 } else { 0 };
+        let original = bundle_dir("raw").join(format!("plane{plane:02}_take{take}.dng"));
+        let (a, b) = (
+            dng::load(&dir.path().join(name)).unwrap(),
+            dng::load(&original).unwrap(),
+        );
+        assert_eq!(
+            (&a.raw.bytes, a.raw.width, a.raw.order, a.raw.black_level),
+            (&b.raw.bytes, b.raw.width, b.raw.order, b.raw.black_level),
+            "{name} against {}",
+            original.display()
+        );
+        if libraw {
+            let samples = |dng: &Path| {
+                let copy = dir.path().join("libraw.dng");
+                std::fs::copy(dng, &copy).unwrap();
+                common::libraw::run("unprocessed_raw", &["-T"], &copy);
+                common::libraw::read_tiff(&copy.with_extension("dng.tiff"))
+            };
+            assert_eq!(
+                samples(&dir.path().join(name)),
+                samples(&original),
+                "{name}"
+            );
+        }
+    }
 }

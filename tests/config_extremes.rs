@@ -73,9 +73,17 @@ fn capture(config: &Config, bundle: &Path, out: &Path) -> Result<(), String> {
         faults: Vec::new(),
     };
     let mut rig = Rig::open(config, &source).map_err(|e| format!("{e:#}"))?;
-    job::run(&mut rig, &config.fuse, out, None, &Unmonitored, &NoProgress)
-        .map(|_| ())
-        .map_err(|e| format!("{e:#}"))
+    job::run(
+        &mut rig,
+        &config.fuse,
+        out,
+        None,
+        false,
+        &Unmonitored,
+        &NoProgress,
+    )
+    .map(|_| ())
+    .map_err(|e| format!("{e:#}"))
 }
 
 #[test]

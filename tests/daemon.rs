@@ -515,3 +515,101 @@ fn a_trigger_device_that_is_not_an_input_device_is_a_log_line_and_captures_still
         });
     }
 }
+
+/// A raw replay's takes are developed after the sweep in a `developing` stage, frame by frame:
+/// held there (an injected hold at frame 3), the State says so, Capture is Busy, and Cancel ends
+/// the job with nothing written, not even the raw takes already kept. The next capture goes
+/// through the stage to the end and keeps its raw takes beside the picture.
+#[test]
+fn developing_is_a_stage_that_is_busy_and_cancels_leaving_nothing() {
+    let bus = Bus::start();
+    let out = tempfile::tempdir().unwrap();
+    let tables = format!("[output]\ndir = {:?}\nkeep_raw = true\n", out.path());
+    let d = Daemon::start_full(
+        &bus,
+        Some(&bundle_dir("raw")),
+        false,
+        &["--fault", "develop-hold:3"],
+        &tables,
+        &[],
+    );
+    let outputs = || {
+        let mut v: Vec<String> = std::fs::read_dir(out.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    runtime().block_on(async {
+        let (_conn, proxy) = connect(&bus).await;
+        let (finished, failed) = subscribe(&proxy).await;
+        let mut progress = proxy.receive_progress().await.unwrap();
+        let job = proxy.capture().await.unwrap();
+        let developing = developing_progress(&mut progress, &job, Some(3)).await;
+        drop(progress);
+        assert_eq!(developing, [(0, 6), (1, 6), (2, 6), (3, 6)]);
+        assert_eq!(proxy.state().await.unwrap(), "developing");
+        let (name, msg) = dbus_error(proxy.capture().await.unwrap_err());
+        assert_eq!(name, "org.focusd.Error.Busy");
+        assert!(msg.contains(&format!("job {job} is running")), "{msg}");
+        proxy.cancel(&job).await.unwrap();
+        assert_eq!(
+            outcome(&job, finished, failed).await.unwrap_err(),
+            "cancelled"
+        );
+        assert_eq!(proxy.state().await.unwrap(), "idle");
+        assert!(outputs().is_empty(), "{:?}\n{}", outputs(), d.log());
+
+        // The hold was for the first job only: this one develops every frame and finishes.
+        let (finished, failed) = subscribe(&proxy).await;
+        let mut progress = proxy.receive_progress().await.unwrap();
+        let job = proxy.capture().await.unwrap();
+        let developing = developing_progress(&mut progress, &job, None).await;
+        // Unread, the stream would hold up the connection, and the Finished signal with it.
+        drop(progress);
+        assert_eq!(developing, (0..=6).map(|i| (i, 6)).collect::<Vec<_>>());
+        let path = outcome(&job, finished, failed).await.unwrap();
+        let stem = Path::new(&path)
+            .file_stem()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        let mut expected = vec![format!("{stem}.jpg"), format!("{stem}.json")];
+        expected.extend((0..6).map(|p| format!("{stem}-raw-{p:02}.dng")));
+        expected.sort();
+        assert_eq!(outputs(), expected);
+        let r: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(Path::new(&path).with_extension("json")).unwrap(),
+        )
+        .unwrap();
+        assert!(r["timings_ms"]["develop"].as_f64().unwrap() > 0.0, "{r}");
+    });
+}
+
+/// The (done, total) of `job`'s `developing` Progress signals, up to the one with done `until`,
+/// or (`None`) up to the first of a later stage.
+async fn developing_progress(
+    progress: &mut focusd::service::proxy::ProgressStream,
+    job: &str,
+    until: Option<u32>,
+) -> Vec<(u32, u32)> {
+    let mut seen = Vec::new();
+    while let Some(s) = progress.next().await {
+        let a = s.args().unwrap();
+        if a.job != job {
+            continue;
+        }
+        if a.stage != "developing" {
+            if seen.is_empty() {
+                continue;
+            }
+            break;
+        }
+        seen.push((a.done, a.total));
+        if Some(a.done) == until {
+            break;
+        }
+    }
+    seen
+}

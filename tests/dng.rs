@@ -3,27 +3,15 @@
 //! written, and LibRaw's linear half-size development of a grey patch, in camera RGB, is
 //! neutral. Without the tools the tests fail under CI and are skipped elsewhere, saying why.
 
+mod common;
+
+use common::libraw::{libraw, read_tiff, run};
 use focusd::develop::raw::{self, Packing};
 use focusd::develop::{BayerOrder, RawFrame, IDENTITY};
 use focusd::files::dng::{encode, DngInfo};
 use focusd::files::orientation::Orientation;
 use std::path::Path;
 use std::process::Command;
-
-/// Whether LibRaw's tools are here; under CI they must be.
-fn libraw() -> bool {
-    let here = ["raw-identify", "unprocessed_raw", "dcraw_emu"]
-        .iter()
-        .all(|t| Command::new(t).output().is_ok());
-    if !here {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "LibRaw's tools are needed (apt-get install libraw-bin)"
-        );
-        eprintln!("skipped: LibRaw's tools are not installed (apt-get install libraw-bin)");
-    }
-    here
-}
 
 const W: usize = 64;
 const H: usize = 48;
@@ -60,30 +48,6 @@ fn write(dir: &Path, name: &str, f: &RawFrame, turns: u8) -> std::path::PathBuf 
     let path = dir.join(name);
     std::fs::write(&path, encode(f, &info).expect("encodes")).expect("writes");
     path
-}
-
-fn run(tool: &str, args: &[&str], file: &Path) -> String {
-    let o = Command::new(tool)
-        .args(args)
-        .arg(file)
-        .output()
-        .expect(tool);
-    let out = String::from_utf8_lossy(&o.stdout).into_owned() + &String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{tool} {args:?}: {out}");
-    out
-}
-
-/// A 16-bit TIFF LibRaw wrote: width, height, channels and samples.
-fn read_tiff(path: &Path) -> (usize, usize, usize, Vec<u16>) {
-    let img = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let c = usize::from(img.color().channel_count());
-    let data = match img {
-        image::DynamicImage::ImageLuma16(i) => i.into_raw(),
-        image::DynamicImage::ImageRgb16(i) => i.into_raw(),
-        other => panic!("{}: {:?}, not 16-bit", path.display(), other.color()),
-    };
-    (w, h, c, data)
 }
 
 #[test]

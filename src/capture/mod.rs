@@ -23,6 +23,8 @@ pub enum Stage {
     WaitingStill,
     /// Taking the planes.
     Sweeping,
+    /// Developing the raw takes, once the lens is done.
+    Developing,
     /// The engine's work on the frames.
     Fuse(crate::stack::Stage),
 }
@@ -32,6 +34,7 @@ impl Stage {
         match self {
             Stage::WaitingStill => "waiting-still",
             Stage::Sweeping => "sweeping",
+            Stage::Developing => "developing",
             Stage::Fuse(s) => s.name(),
         }
     }
@@ -70,22 +73,38 @@ pub enum Frame {
     Raw(RawFrame),
 }
 
-/// Pictures from a sweep's frames, in order: raw ones developed by `develop` (one call each,
-/// each mosaic freed as soon as it is developed), pictures as they are.
+/// Develops raw frame `i` into a picture; the error says why not.
+pub type DevelopOne<'a> = dyn FnMut(usize, &RawFrame) -> Result<Image<u8>, String> + 'a;
+
+/// Pictures from a sweep's frames, in order: raw ones developed by `develop` (called with the
+/// frame's index, one call each, each mosaic freed as soon as it is developed), pictures as
+/// they are. The raw ones are reported to `monitor` as the `Developing` stage, frame by frame;
+/// a cancel between two frames stops the work and frees the mosaics left.
 pub fn develop(
     frames: Vec<Frame>,
-    develop: &mut dyn FnMut(&RawFrame) -> Result<Image<u8>, String>,
+    monitor: &dyn sweep::Monitor,
+    develop: &mut DevelopOne,
 ) -> Result<Vec<Image<u8>>, CaptureError> {
-    frames
-        .into_iter()
-        .enumerate()
-        .map(|(i, f)| match f {
-            Frame::Picture(img) => Ok(img),
+    let total = frames.iter().filter(|f| matches!(f, Frame::Raw(_))).count();
+    let mut done = 0;
+    let mut pictures = Vec::with_capacity(frames.len());
+    for (i, f) in frames.into_iter().enumerate() {
+        pictures.push(match f {
+            Frame::Picture(img) => img,
             Frame::Raw(raw) => {
-                develop(&raw).map_err(|e| CaptureError::device(format!("raw frame {i}"), e))
+                if monitor.cancelled() {
+                    return Err(CaptureError::Cancelled);
+                }
+                monitor.progress(Stage::Developing, done, total);
+                done += 1;
+                develop(i, &raw).map_err(|e| CaptureError::device(format!("raw frame {i}"), e))?
             }
-        })
-        .collect()
+        });
+    }
+    if total > 0 {
+        monitor.progress(Stage::Developing, total, total);
+    }
+    Ok(pictures)
 }
 
 /// A camera with a lens that can be moved to an absolute position.
@@ -176,5 +195,98 @@ impl CaptureError {
             device: device.into(),
             reason: reason.into(),
         }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::sweep::Monitor;
+    use super::*;
+    use crate::develop::{BayerOrder, RawLayout, IDENTITY};
+    use std::cell::{Cell, RefCell};
+
+    /// Records the progress reported and cancels once `cancel_at` frames were developed.
+    struct Watch {
+        seen: RefCell<Vec<(Stage, usize, usize)>>,
+        developed: Cell<usize>,
+        cancel_at: usize,
+    }
+
+    impl Monitor for Watch {
+        fn progress(&self, stage: Stage, done: usize, total: usize) {
+            self.seen.borrow_mut().push((stage, done, total));
+        }
+        fn cancelled(&self) -> bool {
+            self.developed.get() >= self.cancel_at
+        }
+    }
+
+    /// A 4×4 RGGB mosaic of grey.
+    pub(crate) fn raw_frame() -> RawFrame {
+        let layout = RawLayout {
+            packing: crate::develop::raw::Packing::Bits8,
+            width: 4,
+            height: 4,
+            stride: 0,
+            order: BayerOrder::Rggb,
+            black_level: 0,
+            matrix: IDENTITY,
+        };
+        RawFrame::copy(&[90; 16], layout).expect("raw")
+    }
+
+    fn raw() -> Frame {
+        Frame::Raw(raw_frame())
+    }
+
+    #[test]
+    fn raw_frames_are_reported_one_by_one_and_a_cancel_stops_between_two() {
+        let watch = Watch {
+            seen: RefCell::default(),
+            developed: Cell::new(0),
+            cancel_at: usize::MAX,
+        };
+        let mut stack = crate::develop::StackDeveloper::default();
+        let mut one = |_: usize, r: &RawFrame| {
+            watch.developed.set(watch.developed.get() + 1);
+            stack.develop(r)
+        };
+        let frames = vec![raw(), raw(), raw()];
+        assert_eq!(develop(frames, &watch, &mut one).unwrap().len(), 3);
+        let developing = |n| {
+            (0..=n)
+                .map(|i| (Stage::Developing, i, n))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(*watch.seen.borrow(), developing(3));
+
+        // Cancelled once two are developed: the third is never started.
+        let watch = Watch {
+            seen: RefCell::default(),
+            developed: Cell::new(0),
+            cancel_at: 2,
+        };
+        let mut calls = 0;
+        let mut stack = crate::develop::StackDeveloper::default();
+        let e = develop(vec![raw(), raw(), raw(), raw()], &watch, &mut |_, r| {
+            calls += 1;
+            watch.developed.set(calls);
+            stack.develop(r)
+        })
+        .unwrap_err();
+        assert!(matches!(e, CaptureError::Cancelled), "{e}");
+        assert_eq!(calls, 2);
+        assert_eq!(watch.seen.borrow().len(), 2);
+
+        // Pictures are no development: no stage reported.
+        let watch = Watch {
+            seen: RefCell::default(),
+            developed: Cell::new(0),
+            cancel_at: 0,
+        };
+        let picture = Frame::Picture(Image::from_fn(4, 4, 3, |_, _, _| 7u8));
+        let out = develop(vec![picture], &watch, &mut |_, _| unreachable!()).unwrap();
+        assert_eq!(out.len(), 1);
+        assert!(watch.seen.borrow().is_empty());
     }
 }

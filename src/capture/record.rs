@@ -1,7 +1,11 @@
 //! Recording a sweep: a camera that keeps a copy of every take it hands out, so `focusd
 //! record` can write the whole sweep, rejected takes included, as a replay bundle.
 
-use super::{Camera, CaptureError, Take};
+use super::{Camera, CaptureError, Nanos, Take};
+use crate::develop::RawFrame;
+use crate::files::dng::{self, DngInfo};
+use crate::files::orientation::Orientation;
+use crate::files::FileError;
 
 /// One recorded take: its plane, lens position and frame.
 pub struct Recorded {
@@ -57,4 +61,29 @@ impl Camera for Recording<'_> {
     fn release(&mut self) -> Result<(), CaptureError> {
         self.inner.release()
     }
+}
+
+/// The DNG of a raw take as focusd keeps it (`focusd record`, `[output] keep_raw`): the
+/// exposure's length from its start and end, the time now, the camera `model`, and the turn
+/// that makes the picture upright.
+pub fn take_dng(
+    raw: &RawFrame,
+    exposure: (Nanos, Nanos),
+    model: &str,
+    orientation: Orientation,
+) -> Result<Vec<u8>, FileError> {
+    let taken = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()
+        .map(|d| d.as_secs());
+    let info = DngInfo {
+        orientation,
+        model: model.into(),
+        exposure: u64::try_from(exposure.1 - exposure.0)
+            .ok()
+            .map(std::time::Duration::from_nanos),
+        taken,
+        ..DngInfo::default()
+    };
+    dng::encode(raw, &info)
 }

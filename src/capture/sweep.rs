@@ -5,7 +5,7 @@ use super::gate::{measure, Motion, Rest, Thresholds};
 use super::hold::{Hold, HoldTracker};
 use super::{Camera, CaptureError, Clock, Imu, Nanos, Sensor, Stage, Take};
 use crate::base::setting::{Bounds, Invalid};
-use crate::develop::{RawFrame, StackDeveloper};
+use crate::develop::StackDeveloper;
 use crate::stack::image::Image;
 use serde::{Deserialize, Serialize};
 
@@ -141,7 +141,8 @@ pub struct Sweep {
 
 /// Reports the sweep's progress and asks whether to go on.
 pub trait Monitor {
-    /// Planes done of `total`, and the stage (`WaitingStill`, `Sweeping`).
+    /// Steps done of `total` (planes, or raw frames developed), and the stage (`WaitingStill`,
+    /// `Sweeping`, `Developing`).
     fn progress(&self, stage: Stage, done: usize, total: usize);
     fn cancelled(&self) -> bool;
 }
@@ -166,27 +167,27 @@ pub fn sweep(
     cfg: &SweepConfig,
     monitor: &dyn Monitor,
 ) -> Result<Sweep, CaptureError> {
+    let (takes, sweep) = sweep_takes(camera, imu, clock, cfg, monitor)?;
     let mut stack = StackDeveloper::default();
-    sweep_developing(camera, imu, clock, cfg, monitor, &mut |raw| {
-        stack.develop(raw)
-    })
+    let frames = takes.into_iter().map(|t| t.frame).collect();
+    let frames = super::develop(frames, monitor, &mut |_, raw| stack.develop(raw))?;
+    Ok(Sweep { frames, ..sweep })
 }
 
-/// [`sweep`] with the raw takes developed by `develop`, once the lens is done.
-pub fn sweep_developing(
+/// [`sweep`] without the development: the chosen take of each plane as it came (raw ones
+/// still mosaics), and the sweep's report with no frames.
+pub fn sweep_takes(
     camera: &mut dyn Camera,
     imu: &mut dyn Imu,
     clock: &dyn Clock,
     cfg: &SweepConfig,
     monitor: &dyn Monitor,
-    develop: &mut dyn FnMut(&RawFrame) -> Result<Image<u8>, String>,
-) -> Result<Sweep, CaptureError> {
+) -> Result<(Vec<Take>, Sweep), CaptureError> {
     let result = run(camera, imu, clock, cfg, monitor);
     let released = camera.release();
     let (takes, sweep) = result?;
     released?;
-    let frames = super::develop(takes.into_iter().map(|t| t.frame).collect(), develop)?;
-    Ok(Sweep { frames, ..sweep })
+    Ok((takes, sweep))
 }
 
 fn run(
@@ -337,7 +338,6 @@ fn is_still(samples: &[super::ImuSample], rms: f64) -> bool {
 mod tests {
     use super::*;
     use crate::capture::{Frame, ImuSample};
-    use crate::develop::{BayerOrder, RawLayout, IDENTITY};
     use std::sync::{Arc, Mutex};
 
     /// What happened, in order: lens moves, takes and developments.
@@ -360,16 +360,7 @@ mod tests {
         fn capture(&mut self) -> Result<Take, CaptureError> {
             self.log.lock().expect("log").push("take");
             self.t += 40_000_000;
-            let layout = RawLayout {
-                packing: crate::develop::raw::Packing::Bits8,
-                width: 4,
-                height: 4,
-                stride: 0,
-                order: BayerOrder::Rggb,
-                black_level: 0,
-                matrix: IDENTITY,
-            };
-            let raw = crate::develop::RawFrame::copy(&[90; 16], layout).expect("raw");
+            let raw = crate::capture::tests::raw_frame();
             Ok(Take {
                 frame: Frame::Raw(raw),
                 exposure_start: self.t,
@@ -407,6 +398,20 @@ mod tests {
         }
     }
 
+    /// Logs each raw frame the development starts.
+    struct Logging(Log);
+
+    impl Monitor for Logging {
+        fn progress(&self, stage: Stage, done: usize, total: usize) {
+            if stage == Stage::Developing && done < total {
+                self.0.lock().expect("log").push("develop");
+            }
+        }
+        fn cancelled(&self) -> bool {
+            false
+        }
+    }
+
     struct Frozen(std::sync::atomic::AtomicI64);
 
     impl Clock for Frozen {
@@ -430,17 +435,12 @@ mod tests {
             planes: 4,
             ..SweepConfig::default()
         };
-        let mut stack = StackDeveloper::default();
-        let s = sweep_developing(
+        let s = sweep(
             &mut camera,
             &mut Resting,
             &clock,
             &cfg,
-            &Unmonitored,
-            &mut |raw| {
-                log.lock().expect("log").push("develop");
-                stack.develop(raw)
-            },
+            &Logging(log.clone()),
         )
         .expect("sweeps");
         assert_eq!(s.frames.len(), 4);

@@ -5,11 +5,11 @@
 use super::progress::Bar;
 use anyhow::{Context, Result};
 use focusd::backend::replay::BundleWriter;
-use focusd::capture::record::Recording;
+use focusd::capture::record::{take_dng, Recording};
 use focusd::capture::sweep::{sweep, PlaneReport, Unmonitored};
 use focusd::capture::Frame;
-use focusd::files::dng::{self, DngInfo};
 use focusd::files::imageio as io;
+use focusd::files::orientation::Orientation;
 use focusd::service::config::Config;
 use focusd::service::fuse_settings::QUALITY;
 use focusd::service::job::{self, Rig, Source};
@@ -76,6 +76,7 @@ pub fn run(a: &CaptureArgs) -> Result<()> {
         &fuse_cfg,
         &a.output,
         a.report.as_deref(),
+        config.output.keep_raw,
         &Unmonitored,
         &bar,
     );
@@ -153,26 +154,15 @@ pub fn record(a: &RecordArgs) -> Result<()> {
         .with_rotation(rig.camera.sensor_rotation());
     // Raw takes stay raw (DNG, written now that the sweep is done), so a replay develops
     // them as the camera's; pictures are written as PNG.
-    let taken = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .ok()
-        .map(|d| d.as_secs());
     let placed = takes.len();
     for t in takes {
         let exposure = (t.take.exposure_start, t.take.exposure_end);
         let (extension, bytes) = match &t.take.frame {
             Frame::Picture(p) => ("png", io::encode(p, image::ImageFormat::Png, 100)?),
-            Frame::Raw(r) => {
-                let info = DngInfo {
-                    model: "focusd record".into(),
-                    exposure: u64::try_from(exposure.1 - exposure.0)
-                        .ok()
-                        .map(std::time::Duration::from_nanos),
-                    taken,
-                    ..DngInfo::default()
-                };
-                ("dng", dng::encode(r, &info)?)
-            }
+            Frame::Raw(r) => (
+                "dng",
+                take_dng(r, exposure, "focusd record", Orientation::UPRIGHT)?,
+            ),
         };
         w.add_take(t.plane, t.lens, exposure, extension, &bytes)
             .with_context(|| format!("{}: cannot write a take", a.output.display()))?;

@@ -2,6 +2,7 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
+use focusd::capture::sweep::Unmonitored;
 use focusd::capture::{self, Frame};
 use focusd::develop::StackDeveloper;
 use focusd::files::dng;
@@ -151,7 +152,7 @@ fn develop_dngs(paths: &[PathBuf]) -> Result<Vec<Image<u8>>> {
     let turns: Vec<_> = read.iter().map(|d| d.orientation).collect();
     let mut developer = StackDeveloper::default();
     let frames = read.into_iter().map(|d| Frame::Raw(d.raw)).collect();
-    let pictures = capture::develop(frames, &mut |raw| developer.develop(raw))?;
+    let pictures = capture::develop(frames, &Unmonitored, &mut |_, raw| developer.develop(raw))?;
     Ok(pictures.iter().zip(turns).map(|(p, o)| o.turn(p)).collect())
 }
 

@@ -47,7 +47,8 @@ pub struct ServeArgs {
     #[arg(long, requires = "replay")]
     pub paced: bool,
     /// With --replay: inject a failure into the first job, for tests of the failure paths:
-    /// camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P or panic:P (P a plane).
+    /// camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P, panic:P (P a plane) or
+    /// develop-hold:P (the development of raw frame P waits for a Cancel).
     /// Repeatable.
     #[arg(long, requires = "replay", value_name = "FAULT")]
     pub fault: Vec<focusd::backend::replay::faults::Fault>,

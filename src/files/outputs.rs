@@ -63,6 +63,8 @@ struct Staged {
 /// A command's outputs, claimed before the work and renamed into place together.
 pub struct Outputs {
     staged: Vec<Staged>,
+    /// The directories whose stale temporary files have been removed.
+    swept: Vec<PathBuf>,
 }
 
 impl Outputs {
@@ -71,48 +73,61 @@ impl Outputs {
     /// spellings count), and no two outputs are the same file. Temporary files a killed run
     /// left in those directories are removed.
     pub fn check(outputs: &[&Path], inputs: &[&Path]) -> Result<Outputs> {
-        let inode = |p: &Path| fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
-        let mut set = Outputs { staged: Vec::new() };
-        let mut swept: Vec<PathBuf> = Vec::new();
+        let mut set = Outputs {
+            staged: Vec::new(),
+            swept: Vec::new(),
+        };
         for &path in outputs {
-            let dir = dir_of(path);
-            if !dir.is_dir() {
-                return Err(FileError::NoDirectory {
-                    path: shown(path),
-                    dir: shown(&dir),
-                });
-            }
-            if path.is_dir() {
-                return Err(FileError::IsADirectory { path: shown(path) });
-            }
-            if let Some(n) = inode(path) {
-                if let Some(input) = inputs.iter().find(|p| inode(p) == Some(n)) {
-                    return Err(FileError::IsAnInput {
-                        path: shown(path),
-                        input: shown(input),
-                    });
-                }
-            }
-            if !swept.contains(&dir) {
-                sweep_stale(&dir);
-                swept.push(dir);
-            }
-            let (tmp, file) = create_temp(path)?;
-            let staged = Staged {
-                path: path.to_path_buf(),
-                tmp,
-                file,
-                written: false,
-            };
-            if let Some(other) = set.staged.iter().find(|s| same_file(&s.tmp, &staged.tmp)) {
-                return Err(FileError::SameFile {
-                    path: shown(path),
-                    other: shown(&other.path),
-                });
-            }
-            set.staged.push(staged);
+            set.claim(path, inputs)?;
         }
         Ok(set)
+    }
+
+    /// Claims one more output, checked as [`Outputs::check`] checks them, for work that finds
+    /// out what it writes only on the way (a capture's raw takes); it lands with the others.
+    pub fn add(&mut self, path: &Path) -> Result<()> {
+        self.claim(path, &[])
+    }
+
+    fn claim(&mut self, path: &Path, inputs: &[&Path]) -> Result<()> {
+        let inode = |p: &Path| fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+        let dir = dir_of(path);
+        if !dir.is_dir() {
+            return Err(FileError::NoDirectory {
+                path: shown(path),
+                dir: shown(&dir),
+            });
+        }
+        if path.is_dir() {
+            return Err(FileError::IsADirectory { path: shown(path) });
+        }
+        if let Some(n) = inode(path) {
+            if let Some(input) = inputs.iter().find(|p| inode(p) == Some(n)) {
+                return Err(FileError::IsAnInput {
+                    path: shown(path),
+                    input: shown(input),
+                });
+            }
+        }
+        if !self.swept.contains(&dir) {
+            sweep_stale(&dir);
+            self.swept.push(dir);
+        }
+        let (tmp, file) = create_temp(path)?;
+        let staged = Staged {
+            path: path.to_path_buf(),
+            tmp,
+            file,
+            written: false,
+        };
+        if let Some(other) = self.staged.iter().find(|s| same_file(&s.tmp, &staged.tmp)) {
+            return Err(FileError::SameFile {
+                path: shown(path),
+                other: shown(&other.path),
+            });
+        }
+        self.staged.push(staged);
+        Ok(())
     }
 
     /// Writes `path`'s contents into its temporary file.

@@ -25,6 +25,9 @@ pub struct OutputConfig {
     pub format: String,
     /// Also write the JSON report beside each image.
     pub report: bool,
+    /// Also keep a capture's raw takes, as DNGs beside its image (`focus-…-raw-00.dng`, …),
+    /// for raw tools; a camera that delivers developed frames has none to keep.
+    pub keep_raw: bool,
 }
 
 impl Default for OutputConfig {
@@ -33,6 +36,7 @@ impl Default for OutputConfig {
             dir: None,
             format: "jpg".into(),
             report: true,
+            keep_raw: false,
         }
     }
 }
@@ -221,6 +225,7 @@ mod tests {
         assert_eq!(c.sweep, spelled.sweep);
         assert_eq!(c.fuse, spelled.fuse);
         assert_eq!(c.output.format, spelled.output.format);
+        assert_eq!(c.output.keep_raw, spelled.output.keep_raw);
         assert_eq!(c.service, spelled.service);
         assert_eq!(c.trigger, spelled.trigger);
     }
@@ -272,6 +277,15 @@ mod tests {
             .contains("sampling_hz = 0.5 is out of range 1..=8000"));
         let text = "[output]\nformat = \"gif\"\n";
         assert!(err(text).1.contains("format = \"gif\" is not one of"));
+        let (line, why) = err("[output]\nkeep_raw = \"yes\"\n");
+        assert_eq!(line, Some(2), "{why}");
+        assert!(why.contains("expected a boolean"), "{why}");
+        assert!(
+            Config::parse("[output]\nkeep_raw = true\n")
+                .unwrap()
+                .output
+                .keep_raw
+        );
         let text = "[service]\nstall_timeout_s = 0\n";
         assert_eq!(
             err(text),

@@ -4,15 +4,19 @@
 
 use super::config::Config;
 use super::fuse_settings::FuseSettings;
+use super::output_dir;
 use super::ServiceError;
 use crate::backend::iio::IioImu;
 use crate::backend::replay::faults::{self, Fault};
 use crate::backend::replay::{self, Bundle};
 use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
+use crate::base::clip;
 use crate::capture::hold::Hold;
-use crate::capture::sweep::{sweep, Monitor, PlaneReport, Sweep, SweepConfig};
-use crate::capture::{Camera, CaptureError, Clock, Imu};
+use crate::capture::record::take_dng;
+use crate::capture::sweep::{sweep_takes, Monitor, PlaneReport, Sweep, SweepConfig};
+use crate::capture::{self, Camera, CaptureError, Clock, Frame, Imu, Nanos};
+use crate::develop::StackDeveloper;
 use crate::files::orientation::{tag_jpeg, Orientation};
 use crate::files::outputs::Outputs;
 use crate::stack::fuse::{fuse, FuseError};
@@ -48,6 +52,8 @@ pub struct Rig {
     pub sweep: SweepConfig,
     /// What was opened, one line each (for the log).
     pub description: Vec<String>,
+    /// The faults a replay injects (the development's; the camera and the IMU have theirs).
+    pub faults: Vec<Fault>,
 }
 
 impl Rig {
@@ -78,6 +84,7 @@ impl Rig {
                     clock: Box::new(clock),
                     sweep,
                     description,
+                    faults: faults.clone(),
                 })
             }
             Source::Device => {
@@ -92,6 +99,7 @@ impl Rig {
                     clock: Box::new(MonotonicClock),
                     sweep: config.sweep.clone().unwrap_or_default(),
                     description,
+                    faults: Vec::new(),
                 })
             }
         }
@@ -115,7 +123,8 @@ pub struct Report {
     pub planes: Vec<PlaneReport>,
     /// Sweep duration on the capture clock (simulated time in a replay), ms.
     pub sweep_ms: f64,
-    /// Wall time of `capture`, `register`, `fuse` and `save`, ms.
+    /// Wall time of `capture` (the sweep), `develop` (its raw takes; 0 for a camera that
+    /// delivers pictures), `register`, `fuse` and `save`, ms.
     pub timings_ms: BTreeMap<&'static str, f64>,
     pub memory: MemoryReport,
     /// Which way the frames were focused, as the occlusion edges tell (`OrderEvidence`'s line).
@@ -156,13 +165,15 @@ impl From<&Plan> for MemoryReport {
     }
 }
 
-/// Sweeps, fuses and writes `output` (and `report` when given), both atomically. The sweep
-/// reports to `monitor`, the fusion to `progress`; both can cancel.
+/// Sweeps, fuses and writes `output` (and `report` when given), both atomically; with
+/// `keep_raw`, the raw takes too, as DNGs beside `output` (`output_dir::raw_path`), landing with it. The
+/// sweep and the development report to `monitor`, the fusion to `progress`; all can cancel.
 pub fn run(
     rig: &mut Rig,
     fuse_cfg: &FuseSettings,
     output: &Path,
     report: Option<&Path>,
+    keep_raw: bool,
     monitor: &dyn Monitor,
     progress: &dyn Progress,
 ) -> Result<Report> {
@@ -175,20 +186,48 @@ pub fn run(
         &[],
     )?;
     let t0 = Instant::now();
-    let Sweep {
-        frames,
-        planes,
-        hold,
-        started,
-        ended,
-    } = sweep(
+    let (takes, swept) = sweep_takes(
         rig.camera.as_mut(),
         rig.imu.as_mut(),
         rig.clock.as_ref(),
         &rig.sweep,
         monitor,
     )?;
+    let Sweep {
+        planes,
+        hold,
+        started,
+        ended,
+        ..
+    } = swept;
+    let rotation = rig.camera.sensor_rotation();
+    let upright = Orientation::from_sensor_rotation(rotation)
+        .map_err(|e| CaptureError::device("camera", e))?
+        .then(Orientation::clockwise(hold.quarter_turns));
+    // The raw takes to keep, by frame: where each goes, and its exposure.
+    let mut kept: Vec<Option<(PathBuf, (Nanos, Nanos))>> = Vec::with_capacity(takes.len());
+    for (plane, t) in takes.iter().enumerate() {
+        let path = (keep_raw && matches!(t.frame, Frame::Raw(_)))
+            .then(|| output_dir::raw_path(output, plane));
+        if let Some(p) = &path {
+            outs.add(p)?;
+        }
+        kept.push(path.map(|p| (p, (t.exposure_start, t.exposure_end))));
+    }
     let capture_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t_develop = Instant::now();
+    let mut developer = StackDeveloper::default();
+    let frames = takes.into_iter().map(|t| t.frame).collect();
+    let frames = capture::develop(frames, monitor, &mut |i, raw| {
+        faults::hold_development(&rig.faults, i, monitor);
+        if let Some((path, exposure)) = &kept[i] {
+            let dng =
+                take_dng(raw, *exposure, "focusd capture", upright).map_err(|e| clip::chain(&e))?;
+            outs.write(path, &dng).map_err(|e| clip::chain(&e))?;
+        }
+        developer.develop(raw)
+    })?;
+    let develop_ms = t_develop.elapsed().as_secs_f64() * 1e3;
     let params = fuse_cfg.params(frames.len());
     let fused = fuse(frames, &params, progress)?;
     if !fused.memory.fits() {
@@ -205,10 +244,6 @@ pub fn run(
         return Err(FuseError::Cancelled.into());
     }
     let t = Instant::now();
-    let rotation = rig.camera.sensor_rotation();
-    let upright = Orientation::from_sensor_rotation(rotation)
-        .map_err(|e| CaptureError::device("camera", e))?
-        .then(Orientation::clockwise(hold.quarter_turns));
     // JPEG says the turn in its EXIF tag; PNG and TIFF get the pixels turned.
     let bytes = if format == ImageFormat::Jpeg {
         let plain = crate::files::imageio::encode(&fused.image, format, fuse_cfg.quality)?;
@@ -218,7 +253,7 @@ pub fn run(
         crate::files::imageio::encode(&turned, format, fuse_cfg.quality)?
     };
     outs.write(output, &bytes)?;
-    let mut timings = BTreeMap::from([("capture", capture_ms)]);
+    let mut timings = BTreeMap::from([("capture", capture_ms), ("develop", develop_ms)]);
     for (stage, d) in &fused.timings {
         let key = if stage.registers() {
             "register"

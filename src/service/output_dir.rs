@@ -4,7 +4,7 @@
 
 use super::config::OutputConfig;
 use super::ServiceError;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 /// Creates the output directory if needed.
@@ -28,7 +28,7 @@ pub fn settle(out: &mut OutputConfig) -> Result<(), ServiceError> {
 }
 
 /// The image and report paths of a capture made now: `focus-YYYYMMDD-HHMMSS.jpg` in UTC, with
-/// `-2`, `-3`, ... when that name is taken.
+/// `-2`, `-3`, ... when that name is taken (by an image, a report or kept raw takes).
 pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf), ServiceError> {
     prepare(out)?;
     let secs = SystemTime::now()
@@ -43,11 +43,18 @@ pub fn next_paths(out: &OutputConfig) -> Result<(PathBuf, PathBuf), ServiceError
         };
         let image = out.dir().join(format!("{name}.{}", out.format));
         let report = out.dir().join(format!("{name}.json"));
-        if !image.exists() && !report.exists() {
+        if !image.exists() && !report.exists() && !raw_path(&image, 0).exists() {
             return Ok((image, report));
         }
     }
     unreachable!("an unbounded range ends only by returning")
+}
+
+/// Where a capture's raw take of `plane` is kept (`[output] keep_raw`): beside its picture,
+/// named after it (`focus-….jpg` keeps `focus-…-raw-00.dng`, `focus-…-raw-01.dng`, …).
+pub fn raw_path(output: &Path, plane: usize) -> PathBuf {
+    let stem = output.file_stem().unwrap_or_default().to_string_lossy();
+    output.with_file_name(format!("{stem}-raw-{plane:02}.dng"))
 }
 
 /// `YYYYMMDD-HHMMSS` of a Unix time, in UTC.
@@ -101,6 +108,11 @@ mod tests {
         std::fs::write(&a, b"x").unwrap();
         let (b, _) = next_paths(&out).unwrap();
         assert_ne!(a, b);
+        // Raw takes kept under a name whose picture is gone still hold the name.
+        std::fs::remove_file(&a).unwrap();
+        std::fs::write(raw_path(&a, 0), b"x").unwrap();
+        assert_ne!(next_paths(&out).unwrap().0, a);
+        std::fs::write(&a, b"x").unwrap();
         assert!(
             b.to_string_lossy().ends_with("-2.jpg")
                 || !b

@@ -3,6 +3,7 @@
 
 pub mod daemon;
 pub mod iio;
+pub mod libraw;
 pub mod parallax;
 pub mod stacks;
 pub mod system;

@@ -300,6 +300,12 @@ fn stage_text(stage: &str, done: u32, total: u32) -> String {
             done,
             total
         ),
+        "developing" => format!(
+            "{} {}/{}",
+            gettext("Developing the raw frames"),
+            done,
+            total
+        ),
         "register" | "warp" => gettext("Developing: aligning the frames"),
         _ => gettext("Developing: fusing the sharpest parts"),
     }

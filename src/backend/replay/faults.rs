@@ -1,7 +1,9 @@
 //! Faults injected into a replay, so that the service's failure paths (a camera that vanishes,
 //! a frame that never comes, an IMU that stops or reads garbage) run end to end in tests,
-//! exactly where a phone would hit them: at a given plane of the sweep.
+//! exactly where a phone would hit them: at a given plane of the sweep, or at a frame of the
+//! development after it.
 
+use crate::capture::sweep::Monitor;
 use crate::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Take};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -18,14 +20,19 @@ pub enum Fault {
     ImuNan(usize),
     /// Moving the lens to this plane panics, as a bug would.
     Panic(usize),
+    /// Developing this raw frame waits until the job is cancelled: a job held in the
+    /// `developing` stage, for tests of what a client sees and may do then.
+    DevelopHold(usize),
 }
 
 impl std::str::FromStr for Fault {
     type Err = String;
 
-    /// `camera-gone:P`, `frame-timeout:P`, `imu-stops:P` or `imu-nan:P`, P a plane index.
+    /// `camera-gone:P`, `frame-timeout:P`, `imu-stops:P`, `imu-nan:P`, `panic:P` or
+    /// `develop-hold:P`, P a plane index.
     fn from_str(s: &str) -> Result<Fault, String> {
-        let usage = "expected camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P or panic:P";
+        let usage = "expected camera-gone:P, frame-timeout:P, imu-stops:P, imu-nan:P, panic:P \
+                     or develop-hold:P";
         let (kind, plane) = s
             .split_once(':')
             .ok_or_else(|| format!("fault {s:?}: {usage}"))?;
@@ -38,8 +45,19 @@ impl std::str::FromStr for Fault {
             "imu-stops" => Fault::ImuStops(p),
             "imu-nan" => Fault::ImuNan(p),
             "panic" => Fault::Panic(p),
+            "develop-hold" => Fault::DevelopHold(p),
             _ => return Err(format!("fault {s:?}: {usage}")),
         })
+    }
+}
+
+/// Holds the development of raw frame `frame` where `faults` say so: returns once `monitor`
+/// says the job is cancelled, asking every few milliseconds (which also beats its heartbeat).
+pub fn hold_development(faults: &[Fault], frame: usize, monitor: &dyn Monitor) {
+    if faults.contains(&Fault::DevelopHold(frame)) {
+        while !monitor.cancelled() {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
     }
 }
 
@@ -148,6 +166,7 @@ mod tests {
     fn faults_parse_and_bad_ones_say_why() {
         assert_eq!("camera-gone:2".parse(), Ok(Fault::CameraGone(2)));
         assert_eq!("imu-nan:0".parse(), Ok(Fault::ImuNan(0)));
+        assert_eq!("develop-hold:3".parse(), Ok(Fault::DevelopHold(3)));
         assert!("imu-nan"
             .parse::<Fault>()
             .unwrap_err()

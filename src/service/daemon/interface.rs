@@ -116,7 +116,7 @@ impl Focusd {
         }
     }
 
-    /// `idle`, `waiting-still`, `sweeping`, `registering` or `fusing`.
+    /// `idle`, `waiting-still`, `sweeping`, `developing`, `registering` or `fusing`.
     #[zbus(property)]
     pub(super) fn state(&self) -> String {
         let s = self.shared.lock();

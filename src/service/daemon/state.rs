@@ -38,6 +38,12 @@ impl Running {
                 "sweeping, at plane {done} (planes 0 to {})",
                 total.saturating_sub(1)
             ),
+            (Stage::Developing, done, total) => {
+                format!(
+                    "developing, at raw frame {done} (frames 0 to {})",
+                    total.saturating_sub(1)
+                )
+            }
             (stage, ..) => stage.name().to_string(),
         }
     }

@@ -59,7 +59,7 @@ pub(super) struct Reporter {
 /// The `State` property while a job is in `stage`.
 pub(super) fn state_of(stage: Stage) -> &'static str {
     match stage {
-        Stage::WaitingStill | Stage::Sweeping => stage.name(),
+        Stage::WaitingStill | Stage::Sweeping | Stage::Developing => stage.name(),
         Stage::Fuse(s) if s.registers() => "registering",
         Stage::Fuse(_) => "fusing",
     }
@@ -178,6 +178,7 @@ pub(super) fn worker(
                     &r.config.fuse,
                     &r.output,
                     r.report.as_deref(),
+                    r.config.output.keep_raw,
                     &reporter,
                     &reporter,
                 )
