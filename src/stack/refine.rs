@@ -92,7 +92,7 @@ pub(super) fn refine<T: Sample>(
         frame_pixels: w * h,
         ..Developed::default()
     };
-    for i in 0..frames.len() {
+    for (i, frame) in frames.iter_mut().enumerate() {
         if progress.cancelled() {
             break;
         }
@@ -157,9 +157,9 @@ pub(super) fn refine<T: Sample>(
                     &mut warped_cheap,
                     &mut scratch,
                 );
-                add(&mut frames[i], &out, &warped_cheap);
+                add(frame, &out, &warped_cheap);
             }
-            None => add(&mut frames[i], &full, &cheap),
+            None => add(frame, &full, &cheap),
         }
         progress.advance(1);
     }
