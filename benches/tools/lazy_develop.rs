@@ -12,7 +12,7 @@
 //! - Time: median of `--runs` (default 1) of each way, interleaved.
 
 use anyhow::{bail, Context, Result};
-use focusd::develop::{RawFrame, RawStack, StackDeveloper};
+use focusd::develop::{Developer, RawFrame, RawStack};
 use focusd::files::imageio::load_rgb8;
 use focusd::sim::bundle::raw_take;
 use focusd::sim::{render, SimParams};
@@ -21,7 +21,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 /// Developed in full, then fused; lazily: the fused pictures, the frames' worth developed in
-/// full lazily, and the median times.
+/// full lazily, and the median times. White balance gains of 1: the frames' colours are the
+/// pictures' (or the truth's) as mosaicked, so the comparisons see the development alone.
 fn both(
     raws: &[RawFrame],
     params: &FuseParams,
@@ -31,15 +32,16 @@ fn both(
     let (mut full, mut lazy, mut worth) = (None, None, 0.0);
     for _ in 0..runs {
         let t = Instant::now();
-        let mut dev = StackDeveloper::default();
+        let mut dev = Developer::new(raws[0].black_level, raws[0].matrix);
+        dev.white_balance = Some([1.0; 3]);
         let frames: Vec<Image<u8>> = raws
             .iter()
-            .map(|r| dev.develop(r).expect("develops"))
+            .map(|r| dev.develop(r.mosaic().expect("unpacks")))
             .collect();
         full = Some(fuse(frames, params, &NoProgress).expect("fuses").image);
         times[0].push(t.elapsed());
         let t = Instant::now();
-        let stack = RawStack::new(raws.to_vec(), None).expect("a stack");
+        let stack = RawStack::new(raws.to_vec(), Some([1.0; 3])).expect("a stack");
         let f = fuse_developing(&stack, params, &NoProgress).expect("fuses");
         times[1].push(t.elapsed());
         worth = f.developed.expect("counted").frames();
