@@ -3,7 +3,7 @@
 //! written, and LibRaw's linear half-size development of a grey patch, in camera RGB, is
 //! neutral. Without the tools the tests fail under CI and are skipped elsewhere, saying why.
 
-use focusd::develop::raw::Packing;
+use focusd::develop::raw::{self, Packing};
 use focusd::develop::{BayerOrder, RawFrame, IDENTITY};
 use focusd::files::dng::{encode, DngInfo};
 use focusd::files::orientation::Orientation;
@@ -38,13 +38,9 @@ fn frame(packing: Packing, order: BayerOrder) -> RawFrame {
 }
 
 fn raw_frame(packing: Packing, order: BayerOrder, samples: &[u16]) -> RawFrame {
-    let bytes = match packing {
-        Packing::Bits8 => samples.iter().map(|&s| s as u8).collect(),
-        _ => samples.iter().flat_map(|s| s.to_le_bytes()).collect(),
-    };
     RawFrame {
         stride: packing.row_bytes(W),
-        bytes,
+        bytes: raw::pack(packing, W, samples),
         packing,
         width: W,
         height: H,
@@ -233,14 +229,14 @@ fn fuse_develops_a_dng_stack() {
         let upright = load(p);
         let stored = Orientation::clockwise(1).turn(&decode(&upright));
         let m = Mosaic::sample(&stored, BayerOrder::Gbrg);
-        let bytes: Vec<u8> = m
+        let samples: Vec<u16> = m
             .data
             .iter()
-            .flat_map(|&v| ((v.clamp(0.0, 1.0) * 959.0).round() as u16 + 64).to_le_bytes())
+            .map(|&v| (v.clamp(0.0, 1.0) * 959.0).round() as u16 + 64)
             .collect();
         let f = RawFrame {
-            stride: m.width * 2,
-            bytes,
+            stride: Packing::Le10.row_bytes(m.width),
+            bytes: raw::pack(Packing::Le10, m.width, &samples),
             packing: Packing::Le10,
             width: m.width,
             height: m.height,

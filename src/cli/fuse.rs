@@ -2,7 +2,7 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
-use focusd::develop::raw::{self, Packing};
+use focusd::develop::raw;
 use focusd::develop::{stack::working_bytes, BayerOrder, RawFrame, RawStack};
 use focusd::files::dng;
 use focusd::files::imageio::{self as io, Decoded, Header};
@@ -179,24 +179,10 @@ fn upright(f: RawFrame, o: Orientation) -> Result<RawFrame> {
     .into_iter()
     .find(|b| (0..4).all(|k| b.channel(k % 2, k / 2) == colours.at(k % 2, k / 2, 0) as usize))
     .expect("a Bayer pattern turned is a Bayer pattern");
-    let (packing, bytes): (Packing, Vec<u8>) = match f.packing {
-        Packing::Bits8 => (
-            Packing::Bits8,
-            turned.data().iter().map(|&v| v as u8).collect(),
-        ),
-        p => (
-            if p == Packing::Le16 {
-                Packing::Le16
-            } else {
-                Packing::Le10
-            },
-            turned.data().iter().flat_map(|v| v.to_le_bytes()).collect(),
-        ),
-    };
+    let bytes = raw::pack(f.packing, turned.width(), turned.data());
     Ok(RawFrame {
-        stride: 0,
+        stride: f.packing.row_bytes(turned.width()),
         bytes,
-        packing,
         width: turned.width(),
         height: turned.height(),
         order,

@@ -96,24 +96,52 @@ pub fn unpack(
     Ok(out)
 }
 
+/// `samples` (row by row, `width` a row) in the packing's bytes, rows unpadded: what
+/// [`unpack`] reads back. Samples above the packing's depth are cut to its low bits.
+pub fn pack(packing: Packing, width: usize, samples: &[u16]) -> Vec<u8> {
+    let mut out =
+        Vec::with_capacity(samples.len().div_ceil(width.max(1)) * packing.row_bytes(width));
+    for row in samples.chunks(width.max(1)) {
+        match packing {
+            Packing::Bits8 => out.extend(row.iter().map(|&s| s as u8)),
+            Packing::Le10 | Packing::Le16 => out.extend(row.iter().flat_map(|s| s.to_le_bytes())),
+            Packing::Mipi10 => {
+                for group in row.chunks(4) {
+                    out.extend(group.iter().map(|&s| (s >> 2) as u8));
+                    out.push(
+                        group
+                            .iter()
+                            .enumerate()
+                            .fold(0, |low, (i, &s)| low | ((s & 3) as u8) << (2 * i)),
+                    );
+                }
+            }
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// Packs samples the way MIPI RAW10 does, independently of `unpack`.
-    fn pack10(samples: &[u16]) -> Vec<u8> {
-        let mut out = Vec::new();
-        for g in samples.chunks(4) {
-            let mut low = 0u8;
-            for (i, &s) in g.iter().enumerate() {
-                out.push((s >> 2) as u8);
-                low |= ((s & 3) as u8) << (2 * i);
-            }
-            if g.len() == 4 {
-                out.push(low);
-            }
+    #[test]
+    fn pack_is_what_unpack_reads() {
+        // 6 samples a row leaves MIPI RAW10 a partial group at each row's end.
+        for packing in [
+            Packing::Bits8,
+            Packing::Mipi10,
+            Packing::Le10,
+            Packing::Le16,
+        ] {
+            let max = (1u32 << packing.bits()) - 1;
+            let samples: Vec<u16> = (0..18u32)
+                .map(|i| ((i * 7919 + 13) % (max + 1)) as u16)
+                .collect();
+            let bytes = pack(packing, 6, &samples);
+            assert_eq!(bytes.len(), 3 * packing.row_bytes(6), "{packing:?}");
+            assert_eq!(unpack(packing, 6, 3, 0, &bytes), Ok(samples), "{packing:?}");
         }
-        out
     }
 
     #[test]
@@ -125,7 +153,7 @@ mod tests {
             unpack(Packing::Mipi10, 4, 1, 0, &row),
             Ok(vec![0x3ff, 0x001, 0x200, 0x155])
         );
-        assert_eq!(pack10(&[0x3ff, 0x001, 0x200, 0x155]), row);
+        assert_eq!(pack(Packing::Mipi10, 4, &[0x3ff, 0x001, 0x200, 0x155]), row);
     }
 
     #[test]
@@ -134,10 +162,9 @@ mod tests {
         let samples: Vec<u16> = (0..18).map(|i| (i * 59 + 7) % 1024).collect();
         let mut bytes = Vec::new();
         for r in samples.chunks(6) {
-            let mut line = pack10(r);
-            // The partial group's low-bits byte: its samples' low bits, as a driver writes.
-            let low = (r[4] & 3) as u8 | ((r[5] & 3) as u8) << 2;
-            line.push(low);
+            // The partial group's low-bits byte ends the row, as a driver writes it.
+            let mut line = pack(Packing::Mipi10, 6, r);
+            assert_eq!(line[7], (r[4] & 3) as u8 | ((r[5] & 3) as u8) << 2);
             assert_eq!(line.len(), Packing::Mipi10.row_bytes(6));
             line.resize(10, 0xee);
             bytes.extend(line);

@@ -7,7 +7,7 @@
 
 use super::rng::Rng;
 use crate::capture::{ImuSample, Nanos, Sensor};
-use crate::develop::raw::Packing;
+use crate::develop::raw::{self, Packing};
 use crate::develop::{decode, BayerOrder, Mosaic, RawFrame, IDENTITY};
 use crate::stack::image::Image;
 
@@ -35,15 +35,15 @@ const RAW_WHITE: u16 = 1023;
 pub fn raw_take(picture: &Image<u8>) -> RawFrame {
     let m = Mosaic::sample(&decode(picture), RAW_ORDER);
     let span = f32::from(RAW_WHITE - RAW_BLACK);
-    let bytes = m
+    let samples: Vec<u16> = m
         .data
         .iter()
-        .flat_map(|&v| ((v.clamp(0.0, 1.0) * span).round() as u16 + RAW_BLACK).to_le_bytes())
+        .map(|&v| (v.clamp(0.0, 1.0) * span).round() as u16 + RAW_BLACK)
         .collect();
     RawFrame {
-        bytes,
+        bytes: raw::pack(Packing::Le10, m.width, &samples),
         packing: Packing::Le10,
-        stride: m.width * 2,
+        stride: Packing::Le10.row_bytes(m.width),
         width: m.width,
         height: m.height,
         order: RAW_ORDER,

@@ -650,7 +650,7 @@ mod tests {
         assert!(rgb(f, 6, 5, 8, &[0; 38]).is_ok(), "last row unpadded");
     }
 
-    /// A flat colour (10-bit samples) in every raw packing, built by hand.
+    /// A flat colour (10-bit samples) in every raw packing.
     fn raw_buffer(
         packing: Packing,
         order: BayerOrder,
@@ -658,26 +658,16 @@ mod tests {
         h: usize,
         rgb: [u16; 3],
     ) -> Vec<u8> {
-        let mut out = Vec::new();
-        for y in 0..h {
-            let row: Vec<u16> = (0..w).map(|x| rgb[order.channel(x, y)]).collect();
-            match packing {
-                Packing::Bits8 => out.extend(row.iter().map(|v| (v >> 2) as u8)),
-                Packing::Le10 => out.extend(row.iter().flat_map(|v| v.to_le_bytes())),
-                Packing::Le16 => out.extend(row.iter().flat_map(|v| (v << 6).to_le_bytes())),
-                Packing::Mipi10 => {
-                    for g in row.chunks(4) {
-                        out.extend(g.iter().map(|v| (v >> 2) as u8));
-                        out.push(
-                            g.iter()
-                                .enumerate()
-                                .fold(0, |l, (i, v)| l | ((v & 3) as u8) << (2 * i)),
-                        );
-                    }
-                }
-            }
-        }
-        out
+        // The 10-bit samples at the packing's depth.
+        let at_depth = |v: u16| match packing.bits() {
+            8 => v >> 2,
+            16 => v << 6,
+            _ => v,
+        };
+        let samples: Vec<u16> = (0..w * h)
+            .map(|i| at_depth(rgb[order.channel(i % w, i / w)]))
+            .collect();
+        crate::develop::raw::pack(packing, w, &samples)
     }
 
     #[test]

@@ -8,7 +8,7 @@
 //! a few times its own size.
 
 use super::{bayer_order, development_matrix, tag, CFA, D65};
-use crate::develop::raw::Packing;
+use crate::develop::raw::{self, Packing};
 use crate::develop::{RawFrame, IDENTITY};
 use crate::files::bounded_read;
 use crate::files::error::{shown, FileError};
@@ -665,31 +665,23 @@ impl Main {
             (16, 65535) if uniform => Some(Packing::Le16),
             _ => None,
         };
-        let (packing, black, bytes): (Packing, u32, Vec<u8>) = match packing {
-            Some(Packing::Bits8) => (
-                Packing::Bits8,
-                self.black[0] as u32,
-                samples.iter().map(|&s| s as u8).collect(),
-            ),
-            Some(p) => (
-                p,
-                self.black[0] as u32,
-                samples.iter().flat_map(|s| s.to_le_bytes()).collect(),
-            ),
+        let (packing, black, bytes) = match packing {
+            Some(p) => (p, self.black[0] as u32, raw::pack(p, self.width, samples)),
             None => {
                 let top = self.black.iter().copied().fold(0.0, f64::max);
                 let to = (top * 65535.0 / self.white as f64).round();
                 let white = self.white as f64;
-                let bytes = samples
+                let rescaled: Vec<u16> = samples
                     .iter()
                     .enumerate()
-                    .flat_map(|(i, &s)| {
+                    .map(|(i, &s)| {
                         let (x, y) = (i % self.width, i / self.width);
                         let b = self.black[(y & 1) * 2 + (x & 1)];
                         let v = (f64::from(s) - b) / (white - b) * (65535.0 - to) + to;
-                        (v.round().clamp(0.0, 65535.0) as u16).to_le_bytes()
+                        v.round().clamp(0.0, 65535.0) as u16
                     })
                     .collect();
+                let bytes = raw::pack(Packing::Le16, self.width, &rescaled);
                 (Packing::Le16, to as u32, bytes)
             }
         };

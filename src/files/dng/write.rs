@@ -111,15 +111,15 @@ pub fn encode(frame: &RawFrame, info: &DngInfo) -> Result<Vec<u8>, FileError> {
                 .transpose()
                 .iter()
                 .map(|&v| SRational {
-                    n: (v * 10_000.0).round() as i32,
-                    d: 10_000,
+                    n: (v * 1e6).round() as i32,
+                    d: 1_000_000,
                 })
                 .collect();
             dir.write_tag(Tag::Unknown(tag::COLOR_MATRIX_1), &cm[..])?;
             dir.write_tag(Tag::Unknown(tag::CALIBRATION_ILLUMINANT_1), D65)?;
             let neutral = gains.map(|g| Rational {
-                n: (10_000.0 / g).round() as u32,
-                d: 10_000,
+                n: (1e6 / g).round() as u32,
+                d: 1_000_000,
             });
             dir.write_tag(Tag::Unknown(tag::AS_SHOT_NEUTRAL), &neutral[..])?;
             img.write_data($data)?;

@@ -55,23 +55,38 @@ pub(super) fn luma(planes: &[Plane], light: Light) -> Plane {
 /// fit in two lights is a large share of the spill stage, and where the probes tell the lights
 /// apart clearly, all pairs choose the same light.
 pub(super) const PROBES: usize = 2;
-const CLEAR: f64 = 0.75;
+/// How far apart (mean log residual) the fits in the two lights must be for the better one to
+/// be taken: about a factor of two in residual.
+pub(super) const CLEAR: f64 = 0.75;
+
+/// What the blur fit found.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) enum Fitted {
+    /// No pair could be fitted.
+    Nothing,
+    /// The fits in the two lights explain the stack alike: their mean log residuals are this
+    /// far apart, no more than [`CLEAR`]. Where the near objects are dark or plain, the fit has
+    /// little texture to measure a blur on in either light and settles on whatever σ it can,
+    /// and un-mixing in the wrong light leaves dark or bright rims: nothing is un-mixed.
+    Untold(f64),
+    /// The light the fits explain clearly better, and its pairs.
+    Told(Light, Vec<Pair>),
+}
 
 /// The blur fit: for every pair of a near label `k` and a farther frame `l`, the σ at which
 /// frame `k` blurred best explains frame `l` over the interior of `k`'s region (deeper inside
 /// than 3σ, so the background around the region does not enter), in both lights (or, once the
-/// [`PROBES`] tell them apart, in the better one). Returns the light whose fits leave the
-/// smaller residual (geometric mean of the residuals relative to frame `l`'s variance there)
-/// and its pairs; `None` when nothing could be fitted. `lights` are the reduced frames' luma in
-/// each light; on a tie the first is taken. `probes`: [`PROBES`], or `usize::MAX` to fit every
-/// depth in both lights.
+/// [`PROBES`] tell them apart, in the better one). Tells the light whose fits leave the smaller
+/// residual (geometric mean of the residuals relative to frame `l`'s variance there) by more
+/// than [`CLEAR`], and its pairs. `lights` are the reduced frames' luma in each light.
+/// `probes`: [`PROBES`], or `usize::MAX` to fit every depth in both lights.
 pub(super) fn fit(
     lights: [(Light, Vec<Plane>); 2],
     masks: &[Plane],
     factor: usize,
     probes: usize,
     progress: &dyn Progress,
-) -> (Option<Light>, Vec<Pair>) {
+) -> Fitted {
     let n = masks.len();
     // How deep inside its region each pixel lies: the distance from the pixels outside it.
     // Capped at 255 reduced pixels, far beyond the deepest margin a fit asks for (3σ at
@@ -130,13 +145,16 @@ pub(super) fn fit(
             a.extend(fit_depths(&lumas_a, rest));
             b.extend(fit_depths(&lumas_b, rest));
             match (score(&a), score(&b)) {
+                (Some(sa), Some(sb)) if (sa - sb).abs() <= CLEAR => {
+                    return Fitted::Untold((sa - sb).abs())
+                }
                 (Some(sa), Some(sb)) if sb < sa => (light_b, b),
                 (Some(_), _) => (light_a, a),
                 (None, Some(_)) => (light_b, b),
-                (None, None) => return (None, Vec::new()),
+                (None, None) => return Fitted::Nothing,
             }
         }
     };
     let pairs = fits.into_iter().map(|(p, _)| p).collect();
-    (Some(light), with_predicted(monotone(pairs, n), n))
+    Fitted::Told(light, with_predicted(monotone(pairs, n), n))
 }

@@ -17,8 +17,9 @@
 //!   ([`focal_axis`]);
 //! - the light the defocus mixed in: a camera's lens mixes in linear light while its frames are
 //!   stored sRGB-encoded, but a renderer may have mixed display values; the blur fit is run in
-//!   both and the one that explains the stack better is used, since un-mixing in the wrong one
-//!   leaves dark or bright rims.
+//!   both and the one that explains the stack clearly better is used, since un-mixing in the
+//!   wrong one leaves dark or bright rims; where neither does (dark or plain near objects give
+//!   the fit little to measure in either), nothing is un-mixed.
 //!
 //! Only pairs at least two planes apart count: neighbouring planes blur each other too little to
 //! fit, and a slanted surface spans them without any step. Where the near object covers more
@@ -44,7 +45,7 @@ use super::{Progress, Stage};
 pub use blur_fit::Pair;
 use edge_fill::fill_near_objects;
 pub use light::Light;
-use light::{fit, luma, PROBES};
+use light::{fit, luma, Fitted, CLEAR, PROBES};
 use rayon::prelude::*;
 use synthesis::{Blurs, Spill};
 
@@ -60,7 +61,8 @@ const GUARD: usize = 1;
 /// What the un-mixing did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Unmixed {
-    /// `None` when no pair could be fitted (no depth steps, or regions too small).
+    /// `None` when no pair could be fitted (no depth steps, or regions too small) or the fits
+    /// did not tell the light (`unclear_light`).
     pub light: Option<Light>,
     pub pairs: Vec<Pair>,
     /// Per frame, the pixels changed.
@@ -74,6 +76,9 @@ pub struct Unmixed {
     pub frame_pixels: usize,
     /// The occlusion edges did not tell which frames are nearer, so nothing was done.
     pub untold: bool,
+    /// The blur fits in linear and display light explained the stack alike (their mean log
+    /// residuals this far apart), so nothing was un-mixed.
+    pub unclear_light: Option<f64>,
 }
 
 /// One line for the logs.
@@ -83,6 +88,13 @@ impl std::fmt::Display for Unmixed {
             return write!(
                 f,
                 "left in: the occlusion edges do not tell which frames are nearer (see `order`)"
+            );
+        }
+        if let Some(apart) = self.unclear_light {
+            return write!(
+                f,
+                "left in: the blur fits do not tell the light the defocus mixed in (linear and \
+                 display {apart:.2} apart in mean log residual, needs {CLEAR})"
             );
         }
         let Some(light) = self.light else {
@@ -161,6 +173,7 @@ pub fn unmix<T: Sample>(
         repaired: None,
         frame_pixels: frames.first().map_or(0, |f| f.pixels()),
         untold: order == Order::Unknown,
+        unclear_light: None,
     };
     if n < 3 || frames[0].pixels() == 0 || out.untold {
         return out;
@@ -208,15 +221,19 @@ pub fn unmix<T: Sample>(
         .par_iter()
         .map(|planes| (luma(planes, Light::Display), luma(planes, Light::Linear)))
         .unzip();
-    let (light, pairs) = fit(
+    let (light, pairs) = match fit(
         [(Light::Linear, linear), (Light::Display, display)],
         &masks,
         factor,
         PROBES,
         progress,
-    );
-    let Some(light) = light else {
-        return out;
+    ) {
+        Fitted::Told(light, pairs) => (light, pairs),
+        Fitted::Untold(apart) => {
+            out.unclear_light = Some(apart);
+            return out;
+        }
+        Fitted::Nothing => return out,
     };
     let mut mixed = reduced;
     if light == Light::Linear {

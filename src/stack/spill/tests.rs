@@ -1,7 +1,7 @@
 //! The spill removal's tests: a disc in front of a textured background, blurred as a lens would.
 
 use super::blur_fit::{monotone, with_predicted, Pair};
-use super::light::{fit, luma, PROBES};
+use super::light::{fit, luma, Fitted, PROBES};
 use super::synthesis::{Blurred, Blurs, Group, Spill};
 use super::*;
 use crate::stack::blur::gaussian_blur;
@@ -460,13 +460,29 @@ fn the_light_told_by_the_probes_gives_what_every_depth_fitted_in_both_gives() {
         let (lights, masks) = discs(light);
         let probed = fit(lights.clone(), &masks, 1, PROBES, &NoProgress);
         let every = fit(lights, &masks, 1, usize::MAX, &NoProgress);
-        assert_eq!(probed.0, Some(light));
+        let Fitted::Told(told, pairs) = &probed else {
+            panic!("{light:?}: {probed:?}");
+        };
+        assert_eq!(*told, light);
         assert!(
-            probed.1.iter().filter(|p| !p.predicted).count() >= 4,
+            pairs.iter().filter(|p| !p.predicted).count() >= 4,
             "{probed:?}"
         );
         assert_eq!(probed, every);
     }
+}
+
+#[test]
+fn fits_that_explain_the_stack_alike_in_both_lights_tell_no_light() {
+    // The same luma given as both lights: every fit is the same in both, so neither light is
+    // told, and nothing is un-mixed (the first light is no longer taken on a tie).
+    let (lights, masks) = discs(Light::Linear);
+    let [(_, linear), _] = lights;
+    let alike = [(Light::Linear, linear.clone()), (Light::Display, linear)];
+    assert_eq!(
+        fit(alike, &masks, 1, PROBES, &NoProgress),
+        Fitted::Untold(0.0)
+    );
 }
 
 #[test]
