@@ -2,17 +2,18 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
-use focusd::capture::sweep::Unmonitored;
-use focusd::capture::{self, Frame};
-use focusd::develop::StackDeveloper;
+use focusd::develop::raw;
+use focusd::develop::{stack::working_bytes, BayerOrder, RawFrame, RawStack};
 use focusd::files::dng;
 use focusd::files::imageio::{self as io, Decoded, Header};
+use focusd::files::orientation::Orientation;
 use focusd::files::outputs::Outputs;
 use focusd::files::FileError;
 use focusd::service::fuse_settings::FuseSettings;
 use focusd::stack::{
-    fuse, memory_plan, mib, tenengrad, Alignment, FieldExtent, FrameTransform, FuseError,
-    FuseParams, Image, Placement, RegisterError, Sample, StackShape, Transforms,
+    fuse, fuse_developing, memory_plan, mib, tenengrad, Alignment, Develop, FieldExtent,
+    FrameTransform, FuseError, FuseParams, Image, Placement, RegisterError, Sample, StackShape,
+    Transforms,
 };
 use img_parts::{jpeg::Jpeg, Bytes, ImageEXIF};
 use rayon::prelude::*;
@@ -99,26 +100,20 @@ pub fn run(a: &FuseArgs) -> Result<()> {
     let outs = Outputs::check(&outputs, &inputs)?;
     check_memory(a)?;
     let t0 = Instant::now();
-    let decoded: Vec<Decoded> = if a.frames.iter().any(|p| dng::is_dng(p)) {
-        develop_dngs(&a.frames)?
-            .into_iter()
-            .map(Decoded::U8)
-            .collect()
-    } else {
-        a.frames
-            .par_iter()
-            .map(|p| io::load(p))
-            .collect::<Result<_, FileError>>()?
-    };
+    if a.frames.iter().any(|p| dng::is_dng(p)) {
+        let stack = raw_stack(&a.frames)?;
+        return run_typed(a, Input::Raw(Box::new(stack)), t0.elapsed(), outs);
+    }
+    let decoded: Vec<Decoded> = a
+        .frames
+        .par_iter()
+        .map(|p| io::load(p))
+        .collect::<Result<_, FileError>>()?;
     let load_time = t0.elapsed();
     let sixteen = decoded.iter().any(|d| matches!(d, Decoded::U16(_)));
     if sixteen {
-        run_typed(
-            a,
-            decoded.into_iter().map(to_u16).collect(),
-            load_time,
-            outs,
-        )
+        let frames = decoded.into_iter().map(to_u16).collect();
+        run_typed(a, Input::Pictures(frames), load_time, outs)
     } else {
         let frames = decoded
             .into_iter()
@@ -127,13 +122,20 @@ pub fn run(a: &FuseArgs) -> Result<()> {
                 Decoded::U16(_) => unreachable!("checked above"),
             })
             .collect();
-        run_typed(a, frames, load_time, outs)
+        run_typed(a, Input::Pictures(frames), load_time, outs)
     }
 }
 
-/// DNG frames developed as the camera's raw takes are (one white balance for the stack, from
-/// the first frame), each turned upright. A stack is all DNG or none.
-fn develop_dngs(paths: &[PathBuf]) -> Result<Vec<Image<u8>>> {
+/// A stack's frames: pictures, or raw frames the fuse develops, cheaply in whole and in full
+/// where the output keeps them.
+enum Input<T> {
+    Pictures(Vec<Image<T>>),
+    Raw(Box<dyn Develop<T>>),
+}
+
+/// DNG frames, each turned upright, to be developed as the camera's raw takes are (one white
+/// balance for the stack, from the first frame). A stack is all DNG or none.
+fn raw_stack(paths: &[PathBuf]) -> Result<RawStack> {
     if let Some(p) = paths.iter().find(|p| !dng::is_dng(p)) {
         bail!(
             "{}: not a DNG, but {} is; a stack cannot mix raw and developed frames",
@@ -149,11 +151,43 @@ fn develop_dngs(paths: &[PathBuf]) -> Result<Vec<Image<u8>>> {
         .par_iter()
         .map(|p| dng::load(p))
         .collect::<Result<_, FileError>>()?;
-    let turns: Vec<_> = read.iter().map(|d| d.orientation).collect();
-    let mut developer = StackDeveloper::default();
-    let frames = read.into_iter().map(|d| Frame::Raw(d.raw)).collect();
-    let pictures = capture::develop(frames, &Unmonitored, &mut |_, raw| developer.develop(raw))?;
-    Ok(pictures.iter().zip(turns).map(|(p, o)| o.turn(p)).collect())
+    let frames = read
+        .into_iter()
+        .map(|d| upright(d.raw, d.orientation))
+        .collect::<Result<_>>()?;
+    RawStack::new(frames, None).map_err(anyhow::Error::msg)
+}
+
+/// A raw frame turned by `o`: its samples turned as a picture's pixels are, the Bayer order
+/// the one now at the top left.
+fn upright(f: RawFrame, o: Orientation) -> Result<RawFrame> {
+    if o == Orientation::UPRIGHT {
+        return Ok(f);
+    }
+    let samples = raw::unpack(f.packing, f.width, f.height, f.stride, &f.bytes)
+        .map_err(anyhow::Error::msg)?;
+    let turned = o.turn(&Image::from_vec(f.width, f.height, 1, samples));
+    let colours = o.turn(&Image::from_fn(f.width, f.height, 1, |x, y, _| {
+        f.order.channel(x, y) as u8
+    }));
+    let order = [
+        BayerOrder::Rggb,
+        BayerOrder::Bggr,
+        BayerOrder::Grbg,
+        BayerOrder::Gbrg,
+    ]
+    .into_iter()
+    .find(|b| (0..4).all(|k| b.channel(k % 2, k / 2) == colours.at(k % 2, k / 2, 0) as usize))
+    .expect("a Bayer pattern turned is a Bayer pattern");
+    let bytes = raw::pack(f.packing, turned.width(), turned.data());
+    Ok(RawFrame {
+        stride: f.packing.row_bytes(turned.width()),
+        bytes,
+        width: turned.width(),
+        height: turned.height(),
+        order,
+        ..f
+    })
 }
 
 /// Reads every frame's header and refuses, before any frame is decoded, frames of different
@@ -198,12 +232,16 @@ fn check_memory(a: &FuseArgs) -> Result<()> {
             model(headers[0].channels)
         );
     }
+    // Raw frames are held as 16-bit samples at most until the compose.
+    let raw = dng::is_dng(&a.frames[0]);
     let stack = StackShape {
         frames: headers.len(),
         width: w,
         height: h,
         channels: headers[0].channels,
         sample_bytes: headers.iter().map(|d| d.sample_bytes).max().unwrap_or(1),
+        held: if raw { headers.len() * w * h * 2 } else { 0 },
+        developing: if raw { working_bytes(w, h) } else { 0 },
     };
     let plan = memory_plan(&stack, &params(a, headers.len()));
     if !plan.fits() {
@@ -240,19 +278,29 @@ fn to_u16(d: Decoded) -> Image<u16> {
 
 fn run_typed<T: Sample>(
     a: &FuseArgs,
-    frames: Vec<Image<T>>,
+    input: Input<T>,
     load_time: std::time::Duration,
     mut outs: Outputs,
 ) -> Result<()> {
-    let n = frames.len();
-    let (w, h) = (frames[0].width(), frames[0].height());
+    let n = a.frames.len();
     let params = params(a, n);
     let reference = params.reference;
-    let sharp: Vec<f64> = frames.par_iter().map(tenengrad).collect();
     let bar = Bar::stderr();
-    let fused = fuse(frames, &params, &bar).map_err(|e| name_frame(e, &a.frames));
+    let (sharp, fused): (Vec<f64>, _) = match input {
+        Input::Pictures(frames) => (
+            frames.par_iter().map(tenengrad).collect(),
+            fuse(frames, &params, &bar),
+        ),
+        Input::Raw(stack) => (Vec::new(), fuse_developing(stack.as_ref(), &params, &bar)),
+    };
+    let fused = fused.map_err(|e| name_frame(e, &a.frames));
     bar.finish();
     let fused = fused?;
+    // The frames' size: the output's, unless cropped to what every aligned frame covers.
+    let (w, h) = match &fused.alignment {
+        Some(al) => (al.coverage[0].width, al.coverage[0].spans.len()),
+        None => (fused.image.width(), fused.image.height()),
+    };
     if let Some(al) = &fused.alignment {
         report_alignment(al, &a.frames);
     }
@@ -313,6 +361,9 @@ fn run_typed<T: Sample>(
         );
     }
     eprintln!("  order {}", fused.order);
+    if let Some(d) = &fused.developed {
+        eprintln!("  develop {d}");
+    }
     let (fits, plan) = (fused.memory.fits(), fused.memory.to_string());
     let raise = "raise --memory or fuse fewer or smaller frames";
     eprintln!("  {}", memory_line(fits, &plan, raise));

@@ -92,13 +92,20 @@ const STRIP_ROWS: usize = 192;
 
 /// The mosaic with `PAD` samples of mirrored border on each side (mirrored about the edge
 /// sample, which keeps the colour pattern's phase), the samples mapped through `f`.
-struct Padded {
+pub(super) struct Padded {
     width: usize,
     data: Vec<f32>,
 }
 
 impl Padded {
-    fn new(m: &Mosaic, f: impl Fn(f32) -> f32) -> Padded {
+    /// The sample at (x + dx, y + dy) of the unpadded mosaic (|dx|, |dy| at most `PAD`).
+    pub(super) fn at(&self, x: usize, y: usize, dx: isize, dy: isize) -> f32 {
+        let px = (x + PAD) as isize + dx;
+        let py = (y + PAD) as isize + dy;
+        self.data[py as usize * self.width + px as usize]
+    }
+
+    pub(super) fn new(m: &Mosaic, f: impl Fn(f32) -> f32) -> Padded {
         let (w, h) = (m.width, m.height);
         // Reflections about the first and the last sample, repeated, so that even a mosaic
         // smaller than the border is extended with the right colours.
@@ -129,6 +136,44 @@ impl Padded {
 /// samples.
 pub fn demosaic(m: &Mosaic) -> Image<f32> {
     in_strips(m, STRIP_ROWS)
+}
+
+/// [`demosaic`] over each of `rects` (x, y, width, height) only, exactly as the whole frame's
+/// development gives them: each is developed with the mosaic around it as far as an output
+/// pixel's value reaches (`PAD`), the rectangles in parallel.
+pub fn demosaic_regions(m: &Mosaic, rects: &[(usize, usize, usize, usize)]) -> Vec<Image<f32>> {
+    let srgb::Tabulated { encode, decode } = srgb::tabulated();
+    let p = Padded::new(m, |v| encode.at(v));
+    let spare = Mutex::new(Vec::<Workspace>::new());
+    rects
+        .par_iter()
+        .map(|&(x, y, width, height)| {
+            assert!(
+                x + width <= m.width && y + height <= m.height,
+                "region outside the mosaic"
+            );
+            // From even coordinates, so the window keeps the pattern's phase.
+            let (x0, y0) = (x & !1, y & !1);
+            let (ww, wh) = (x + width - x0 + 2 * PAD, y + height - y0 + 2 * PAD);
+            let window: Vec<f32> = (y0..y0 + wh)
+                .flat_map(|r| &p.data[r * p.width + x0..][..ww])
+                .copied()
+                .collect();
+            let taken = spare.lock().unwrap_or_else(PoisonError::into_inner).pop();
+            let mut ws = taken.unwrap_or_default();
+            residual_interpolation(&window, ww, m.order, &mut ws);
+            let planes = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
+            let (dx, dy) = (x - x0, y - y0);
+            let img = Image::from_fn(width, height, 3, |xx, yy, c| {
+                decode.at(planes[c][(yy + dy + PAD) * ww + xx + dx + PAD])
+            });
+            spare
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push(ws);
+            img
+        })
+        .collect()
 }
 
 /// [`demosaic`] computed `rows` output rows at a time.
@@ -634,103 +679,7 @@ fn window_sum(row: &[f32], out: &mut [f32], r: usize) {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
-
-    impl Padded {
-        /// The sample at (x + dx, y + dy) of the unpadded mosaic.
-        fn at(&self, x: usize, y: usize, dx: isize, dy: isize) -> f32 {
-            let px = (x + PAD) as isize + dx;
-            let py = (y + PAD) as isize + dy;
-            self.data[py as usize * self.width + px as usize]
-        }
-    }
-
-    /// `filter` run on the mosaic's sRGB-encoded samples, its output decoded to linear light:
-    /// what [`demosaic`] does, for the baselines.
-    pub fn encoded(m: &Mosaic, filter: fn(&Mosaic) -> Image<f32>) -> Image<f32> {
-        let srgb::Tabulated { encode, decode } = srgb::tabulated();
-        let encoded = Mosaic {
-            data: m.data.iter().map(|&v| encode.at(v)).collect(),
-            ..m.clone()
-        };
-        let mut rgb = filter(&encoded);
-        for v in rgb.data_mut() {
-            *v = decode.at(*v);
-        }
-        rgb
-    }
-
-    /// Bilinear interpolation: each missing colour the mean of its samples among the 3×3
-    /// neighbours, what focusd did first and the baseline the quality tests compare with.
-    pub fn bilinear(m: &Mosaic) -> Image<f32> {
-        let p = Padded::new(m, |v| v);
-        let mut out = Vec::with_capacity(m.width * m.height * 3);
-        for y in 0..m.height {
-            for x in 0..m.width {
-                let mut sum = [0f32; 3];
-                let mut n = [0f32; 3];
-                for dy in -1..=1isize {
-                    for dx in -1..=1isize {
-                        // The padding mirrors, so the colour at (x+dx, y+dy) is the pattern's.
-                        let c = m.order.channel(
-                            (x + 2).wrapping_add_signed(dx),
-                            (y + 2).wrapping_add_signed(dy),
-                        );
-                        sum[c] += p.at(x, y, dx, dy);
-                        n[c] += 1.0;
-                    }
-                }
-                let own = m.order.channel(x, y);
-                for c in 0..3 {
-                    out.push(if c == own {
-                        p.at(x, y, 0, 0)
-                    } else {
-                        sum[c] / n[c]
-                    });
-                }
-            }
-        }
-        Image::from_vec(m.width, m.height, 3, out)
-    }
-
-    /// Malvar, He and Cutler's gradient-corrected linear interpolation ("High-quality linear
-    /// interpolation for demosaicing of Bayer-patterned color images", ICASSP 2004), what
-    /// focusd used before residual interpolation: the bilinear estimate of a missing colour
-    /// plus a fraction of the Laplacian of the colour the pixel has. In the mosaic's own
-    /// encoding.
-    pub fn malvar(m: &Mosaic) -> Image<f32> {
-        let p = Padded::new(m, |v| v);
-        let mut out = Vec::with_capacity(m.width * m.height * 3);
-        for y in 0..m.height {
-            for x in 0..m.width {
-                let s = |dx: isize, dy: isize| p.at(x, y, dx, dy);
-                let c = s(0, 0);
-                // The filters of the paper's figure 2, each times 8.
-                let cross = s(-1, 0) + s(1, 0) + s(0, -1) + s(0, 1);
-                let far = s(-2, 0) + s(2, 0) + s(0, -2) + s(0, 2);
-                let diag = s(-1, -1) + s(1, -1) + s(-1, 1) + s(1, 1);
-                let far_h = s(-2, 0) + s(2, 0);
-                let far_v = s(0, -2) + s(0, 2);
-                // Green at a red or blue sample.
-                let g_at_rb = (4.0 * c + 2.0 * cross - far) / 8.0;
-                // Red (blue) at a green sample whose row holds red (blue): from left and right.
-                let from_row =
-                    (5.0 * c + 4.0 * (s(-1, 0) + s(1, 0)) - diag - far_h + 0.5 * far_v) / 8.0;
-                // ... whose column holds it: from above and below.
-                let from_col =
-                    (5.0 * c + 4.0 * (s(0, -1) + s(0, 1)) - diag - far_v + 0.5 * far_h) / 8.0;
-                // Red at blue, blue at red: from the diagonals.
-                let from_diag = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
-                let rgb = match m.order.channel(x, y) {
-                    0 => [c, g_at_rb, from_diag],
-                    2 => [from_diag, g_at_rb, c],
-                    _ if m.order.channel(x + 1, y) == 0 => [from_row, c, from_col],
-                    _ => [from_col, c, from_row],
-                };
-                out.extend_from_slice(&rgb);
-            }
-        }
-        Image::from_vec(m.width, m.height, 3, out)
-    }
+    use crate::develop::linear::{bilinear, malvar};
 
     const ORDERS: [BayerOrder; 4] = [
         BayerOrder::Rggb,
@@ -771,6 +720,31 @@ pub(super) mod tests {
                         }
                     }
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn regions_are_developed_exactly_as_in_the_whole_frame() {
+        let scene = crate::sim::SimParams::demosaic_scene(11);
+        let truth = crate::develop::decode(&crate::sim::render(&scene).truth);
+        let m = Mosaic::sample(&truth, BayerOrder::Gbrg);
+        let whole = demosaic(&m);
+        // Inside, on odd coordinates, and against each edge of the frame.
+        let (w, h) = (m.width, m.height);
+        let rects = [
+            (101, 77, 60, 33),
+            (0, 0, 50, 40),
+            (w - 31, h - 20, 31, 20),
+            (3, 1, w - 5, 9),
+        ];
+        for (part, r) in demosaic_regions(&m, &rects).iter().zip(rects) {
+            let (x, y, rw, rh) = r;
+            assert_eq!((part.width(), part.height()), (rw, rh));
+            for yy in 0..rh {
+                let got = &part.data()[yy * rw * 3..][..rw * 3];
+                let want = &whole.data()[((y + yy) * w + x) * 3..][..rw * 3];
+                assert_eq!(got, want, "region {r:?} row {yy}");
             }
         }
     }

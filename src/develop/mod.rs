@@ -10,10 +10,13 @@
 pub mod demosaic;
 pub mod frame;
 pub mod half;
+pub mod linear;
 pub mod raw;
+pub mod stack;
 
 use crate::stack::image::Image;
 pub use frame::{RawFrame, RawLayout, StackDeveloper};
+pub use stack::RawStack;
 
 /// The colour of the top-left 2×2 cell of a Bayer mosaic, by its V4L2 name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -195,6 +198,11 @@ impl Developer {
         let mut rgb = half::half_size(m);
         self.to_srgb(&mut rgb, gains);
         rgb
+    }
+
+    /// The locked white balance, gains of 1 if none is.
+    fn locked(&self) -> [f32; 3] {
+        self.white_balance.unwrap_or([1.0; 3])
     }
 
     /// The locked white balance, measured on `m` if none is yet.

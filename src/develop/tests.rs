@@ -1,5 +1,5 @@
 use super::demosaic::demosaic;
-use super::demosaic::tests::{bilinear, encoded, malvar};
+use super::linear::{bilinear, encoded, malvar};
 use super::*;
 use crate::sim::{self, SimParams};
 use crate::stack::blur::gaussian_blur_channels;

@@ -7,6 +7,7 @@ use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
 use super::order::{focus_order, OrderEvidence};
 use super::params::{FuseParams, Method};
+use super::refine::{refine, Develop, Developed};
 use super::register::{register_with, Placement, RegisterError, Registration};
 use super::spill::{unmix, Unmixed};
 use super::transform::Warp;
@@ -37,6 +38,8 @@ pub enum FuseError {
     Register(#[from] RegisterError),
     #[error("the frames have no area in common to crop to; fuse without cropping")]
     NothingToCrop,
+    #[error("frame {frame}: {reason}")]
+    Develop { frame: usize, reason: String },
     #[error("cancelled")]
     Cancelled,
 }
@@ -76,6 +79,9 @@ pub struct Fused<T> {
     pub timings: Vec<(Stage, Duration)>,
     /// How the memory budget was spent.
     pub memory: Plan,
+    /// What was developed at full quality, when the stack came cheaply developed
+    /// ([`fuse_developing`]).
+    pub developed: Option<Developed>,
 }
 
 /// Checks that a stack can be fused at all.
@@ -110,7 +116,48 @@ pub fn validate<T>(frames: &[Image<T>], reference: usize) -> Result<(), FuseErro
 /// Fuses a stack: registers and warps it onto the reference (unless `params.align` is
 /// `None`), labels and composes. Takes the frames by value to warp them in place.
 pub fn fuse<T: Sample>(
+    frames: Vec<Image<T>>,
+    params: &FuseParams,
+    progress: &dyn Progress,
+) -> Result<Fused<T>, FuseError> {
+    fuse_from(frames, None, params, progress)
+}
+
+/// [`fuse`] on a stack's cheap development, with the full development asked for only where
+/// the output keeps it, just before the compose ([`super::refine`]).
+pub fn fuse_developing<T: Sample>(
+    stack: &dyn Develop<T>,
+    params: &FuseParams,
+    progress: &dyn Progress,
+) -> Result<Fused<T>, FuseError> {
+    let t = Instant::now();
+    progress.stage(Stage::Develop, stack.frames());
+    let mut frames = Vec::with_capacity(stack.frames());
+    for i in 0..stack.frames() {
+        go_on(progress)?;
+        let f = stack
+            .cheap(i)
+            .map_err(|reason| FuseError::Develop { frame: i, reason })?;
+        frames.push(f);
+        progress.advance(1);
+    }
+    let cheap = t.elapsed();
+    let mut fused = fuse_from(frames, Some(stack), params, progress)?;
+    // One `developing` time: the cheap development first, the full one before the compose.
+    let full: Duration = fused
+        .timings
+        .iter()
+        .filter(|(s, _)| *s == Stage::Develop)
+        .map(|(_, d)| *d)
+        .sum();
+    fused.timings.retain(|(s, _)| *s != Stage::Develop);
+    fused.timings.insert(0, (Stage::Develop, cheap + full));
+    Ok(fused)
+}
+
+fn fuse_from<T: Sample>(
     mut frames: Vec<Image<T>>,
+    lazy: Option<&dyn Develop<T>>,
     params: &FuseParams,
     progress: &dyn Progress,
 ) -> Result<Fused<T>, FuseError> {
@@ -123,7 +170,7 @@ pub fn fuse<T: Sample>(
         t = Instant::now();
     };
     let reference = params.reference;
-    let plan = memory::plan(&stack_of(&frames), params);
+    let plan = memory::plan(&stack_of(&frames, lazy), params);
     let alignment = match &params.align {
         Some(p) => {
             let registration =
@@ -151,6 +198,19 @@ pub fn fuse<T: Sample>(
         }
     };
     let mut spill = None;
+    let mut developed = None;
+    // The full development, over what the compose will take from each frame.
+    let mut develop = |frames: &mut [Image<T>], labels: Option<(&[u8], &[bool])>| match lazy {
+        Some(stack) => {
+            let a = alignment.as_ref();
+            developed = Some(
+                refine(frames, labels, a, reference, stack, progress)
+                    .map_err(|(frame, reason)| FuseError::Develop { frame, reason })?,
+            );
+            go_on(progress)
+        }
+        None => Ok(()),
+    };
     let (mut image, mut labels, order) = match params.method {
         Method::GraphCut => {
             let Labelled {
@@ -180,6 +240,10 @@ pub fn fuse<T: Sample>(
                 lap(Stage::Spill, &mut timings);
                 go_on(progress)?;
             }
+            if lazy.is_some() {
+                develop(&mut frames, Some((&labels, &textured)))?;
+                lap(Stage::Develop, &mut timings);
+            }
             let (image, _) = compose(
                 &frames,
                 Select::Labels(
@@ -195,6 +259,10 @@ pub fn fuse<T: Sample>(
             (image, labels, order)
         }
         Method::Pyramid => {
+            if lazy.is_some() {
+                develop(&mut frames, None)?;
+                lap(Stage::Develop, &mut timings);
+            }
             let (image, labels) = compose(&frames, Select::MaxContrast, plan.band_rows, progress);
             let order = focus_order(&frames, &labels, coverage);
             lap(Stage::Pyramid, &mut timings);
@@ -221,16 +289,19 @@ pub fn fuse<T: Sample>(
         spill,
         timings,
         memory: plan,
+        developed,
     })
 }
 
-fn stack_of<T>(frames: &[Image<T>]) -> Stack {
+fn stack_of<T>(frames: &[Image<T>], lazy: Option<&dyn Develop<T>>) -> Stack {
     Stack {
         frames: frames.len(),
         width: frames[0].width(),
         height: frames[0].height(),
         channels: frames[0].channels(),
         sample_bytes: size_of::<T>(),
+        held: lazy.map_or(0, |s| s.held_bytes()),
+        developing: lazy.map_or(0, |s| s.working_bytes()),
     }
 }
 
@@ -303,7 +374,7 @@ pub fn warp_onto_reference<T: Sample>(
 }
 
 /// Frame `i`'s warp: its affine and local field.
-fn warp_of(registration: &Registration, i: usize) -> Warp {
+pub(super) fn warp_of(registration: &Registration, i: usize) -> Warp {
     Warp {
         affine: registration.ref_to_frame[i],
         field: registration.field[i].clone(),

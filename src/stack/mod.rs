@@ -21,6 +21,7 @@ pub(crate) mod morphology;
 pub(crate) mod order;
 pub(crate) mod params;
 pub(crate) mod pyramid;
+pub(crate) mod refine;
 pub(crate) mod register;
 pub(crate) mod repair;
 pub(crate) mod spill;
@@ -29,13 +30,14 @@ pub(crate) mod transform;
 
 pub use align::{Coverage, Exposure, Rect};
 pub use focus::FocusParams;
-pub use fuse::{fuse, validate, Alignment, FuseError, Fused};
+pub use fuse::{fuse, fuse_developing, validate, Alignment, FuseError, Fused};
 pub use graphcut::GraphCutParams;
 pub use image::{Image, Sample};
 pub use memory::{mib, plan as memory_plan, Plan as MemoryPlan, Stack as StackShape};
 pub use metrics::{psnr, tenengrad};
 pub use order::{Order, OrderEvidence};
 pub use params::{middle_frame, FuseParams, Method, DEFAULT_BUDGET};
+pub use refine::{Develop, Developed};
 pub use register::{Placement, RegisterError, RegisterParams, Registration};
 pub use repair::{Repaired, Settled};
 pub use spill::{Light, Pair, Unmixed};
@@ -76,6 +78,9 @@ pub enum Stage {
     Compose,
     /// The pyramid method's whole fusion, timed as one stage (its progress is `Compose`'s).
     Pyramid,
+    /// Developing raw frames: cheaply in whole before the fuse, in full where the output
+    /// keeps them before the compose.
+    Develop,
 }
 
 impl Stage {
@@ -88,6 +93,7 @@ impl Stage {
             Stage::Spill => "spill",
             Stage::Compose => "compose",
             Stage::Pyramid => "pyramid",
+            Stage::Develop => "developing",
         }
     }
 

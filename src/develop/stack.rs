@@ -1,0 +1,75 @@
+//! A stack of raw frames developed lazily for the fuse ([`Develop`]): each frame cheaply in
+//! whole ([`linear::cheap`], full size, a twentieth of the full demosaic's work), and with the
+//! full demosaic only over the regions the fuse asks for; one white balance for the stack.
+
+use super::demosaic::demosaic_regions;
+use super::{encode, grey_world, linear, Developer, RawFrame};
+use crate::stack::image::Image;
+use crate::stack::{Develop, Rect};
+
+pub struct RawStack {
+    frames: Vec<RawFrame>,
+    developer: Developer,
+}
+
+impl RawStack {
+    /// The stack of `frames` with the white balance `gains`, or (`None`) as measured on the
+    /// first frame, as a sweep's developer measures it. The frames must share one geometry; the
+    /// fuse checks it on the cheap developments.
+    pub fn new(frames: Vec<RawFrame>, gains: Option<[f32; 3]>) -> Result<RawStack, String> {
+        let first = frames.first().ok_or("no raw frames to develop")?;
+        let mut developer = Developer::new(first.black_level, first.matrix);
+        developer.white_balance = Some(match gains {
+            Some(g) => g,
+            None => grey_world(&[&first.mosaic()?]),
+        });
+        Ok(RawStack { frames, developer })
+    }
+}
+
+/// Bytes developing one `width`×`height` raw frame takes while it runs: its samples in linear
+/// light and encoded with the demosaic's border (4 bytes each), and the cheap development in
+/// linear light (12 bytes a pixel) or the full one's rectangles and their working planes,
+/// whichever is more.
+pub fn working_bytes(width: usize, height: usize) -> usize {
+    24 * width * height
+}
+
+impl Develop<u8> for RawStack {
+    fn frames(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn cheap(&self, i: usize) -> Result<Image<u8>, String> {
+        let mut m = self.frames[i].mosaic()?;
+        m.balance(self.developer.locked());
+        let mut rgb = linear::cheap(&m);
+        self.developer.to_srgb(&mut rgb, [1.0; 3]);
+        Ok(encode(&rgb))
+    }
+
+    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<u8>>, String> {
+        let mut m = self.frames[i].mosaic()?;
+        m.balance(self.developer.locked());
+        let at: Vec<_> = rects
+            .iter()
+            .map(|r| (r.x, r.y, r.width, r.height))
+            .collect();
+        Ok(demosaic_regions(&m, &at)
+            .into_iter()
+            .map(|mut rgb| {
+                self.developer.to_srgb(&mut rgb, [1.0; 3]);
+                encode(&rgb)
+            })
+            .collect())
+    }
+
+    fn held_bytes(&self) -> usize {
+        self.frames.iter().map(|f| f.bytes.len()).sum()
+    }
+
+    fn working_bytes(&self) -> usize {
+        let f = &self.frames[0];
+        working_bytes(f.width, f.height)
+    }
+}
