@@ -101,31 +101,27 @@ pub(super) fn refine<T: Sample>(
             Some(a) if i != reference => Some((warp_of(&a.registration, i), &a.exposure[i])),
             _ => None,
         };
-        let cheap = stack.cheap(i).map_err(|e| (i, e))?;
-        let (fw, fh) = (cheap.width(), cheap.height());
+        // Frames share the output's geometry (the fuse checks it), so regions are known before
+        // anything is developed, and a frame that gives no region is not developed again.
         let rects = match labels {
             None => vec![Rect {
                 x: 0,
                 y: 0,
-                width: fw,
-                height: fh,
+                width: w,
+                height: h,
             }],
-            Some((labels, textured)) => regions(
-                labels,
-                textured,
-                i as u8,
-                (w, h),
-                (fw, fh),
-                |x, y| match &warp {
+            Some((labels, textured)) => {
+                regions(labels, textured, i as u8, (w, h), |x, y| match &warp {
                     Some((warp, _)) => warp.apply(x, y),
                     None => (x, y),
-                },
-            ),
+                })
+            }
         };
         if rects.is_empty() {
             progress.advance(1);
             continue;
         }
+        let cheap = stack.cheap(i).map_err(|e| (i, e))?;
         let mut full = cheap.clone();
         for (r, piece) in rects.iter().zip(stack.full(i, &rects).map_err(|e| (i, e))?) {
             paste(&mut full, &piece, *r);
@@ -166,22 +162,21 @@ pub(super) fn refine<T: Sample>(
     Ok(done)
 }
 
-/// The rectangles of a `fw`×`fh` frame whose pixels the textured output pixels labelled
-/// `label`, and those within [`MARGIN`] of them, are made from; `to_frame` takes an output
-/// pixel to the frame's geometry.
+/// The rectangles of a `w`×`h` frame whose pixels the textured output pixels labelled `label`
+/// (of the `w`×`h` output), and those within [`MARGIN`] of them, are made from; `to_frame`
+/// takes an output pixel to the frame's geometry.
 fn regions(
     labels: &[u8],
     textured: &[bool],
     label: u8,
     (w, h): (usize, usize),
-    (fw, fh): (usize, usize),
     to_frame: impl Fn(f64, f64) -> (f64, f64),
 ) -> Vec<Rect> {
     // Blocks of output pixels holding the label, each marking the cells its centre maps near:
     // the margin, half the block, and the warp's bicubic taps and rounding.
     const BLOCK: usize = 4;
     let reach = (MARGIN + BLOCK / 2 + 3) as f64;
-    let (cw, chh) = (fw.div_ceil(CELL), fh.div_ceil(CELL));
+    let (cw, chh) = (w.div_ceil(CELL), h.div_ceil(CELL));
     let mut cells = vec![false; cw * chh];
     for by in (0..h).step_by(BLOCK) {
         for bx in (0..w).step_by(BLOCK) {
@@ -195,10 +190,7 @@ fn regions(
             }
             let (u, v) = to_frame((bx + x1) as f64 / 2.0, (by + y1) as f64 / 2.0);
             let cell = |a: f64, n: usize| (a.max(0.0) as usize / CELL).min(n - 1);
-            if u + reach < 0.0
-                || v + reach < 0.0
-                || u - reach >= fw as f64
-                || v - reach >= fh as f64
+            if u + reach < 0.0 || v + reach < 0.0 || u - reach >= w as f64 || v - reach >= h as f64
             {
                 continue;
             }
@@ -234,8 +226,8 @@ fn regions(
             rects.push(Rect {
                 x,
                 y,
-                width: (c1 * CELL).min(fw) - x,
-                height: ((bottom + 1) * CELL).min(fh) - y,
+                width: (c1 * CELL).min(w) - x,
+                height: ((bottom + 1) * CELL).min(h) - y,
             });
         }
     }
@@ -378,9 +370,7 @@ mod tests {
             labels[y * w + 300..y * w + 340].fill(2);
         }
         let textured = vec![true; w * h];
-        let rects = regions(&labels, &textured, 2, (w, h), (w, h), |x, y| {
-            (x + 100.0, y + 50.0)
-        });
+        let rects = regions(&labels, &textured, 2, (w, h), |x, y| (x + 100.0, y + 50.0));
         let inside = |x: usize, y: usize| {
             rects
                 .iter()
@@ -395,10 +385,10 @@ mod tests {
         let area: usize = rects.iter().map(|r| r.width * r.height).sum();
         let least = (40 + 2 * MARGIN) * (30 + 2 * MARGIN);
         assert!(area < 2 * least, "{area} pixels for {least}: {rects:?}");
-        assert!(regions(&labels, &textured, 1, (w, h), (w, h), |x, y| (x, y)).is_empty());
+        assert!(regions(&labels, &textured, 1, (w, h), |x, y| (x, y)).is_empty());
         // Mapped off the frame, or flat: nothing.
-        assert!(regions(&labels, &textured, 2, (w, h), (w, h), |x, y| (x + 900.0, y)).is_empty());
+        assert!(regions(&labels, &textured, 2, (w, h), |x, y| (x + 900.0, y)).is_empty());
         let flat = vec![false; w * h];
-        assert!(regions(&labels, &flat, 2, (w, h), (w, h), |x, y| (x, y)).is_empty());
+        assert!(regions(&labels, &flat, 2, (w, h), |x, y| (x, y)).is_empty());
     }
 }
