@@ -237,12 +237,19 @@ fn raw_bundle_develops_its_takes_after_the_sweep() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.png");
-    capture_raw(&[], &out);
+    let report = dir.path().join("report.json");
+    capture_raw(&[Path::new("--report"), &report], &out);
     let truth = load(&bundle_dir("raw").join("truth.png"));
     let fused = psnr(&load(&out), &truth, 0);
     assert!(fused > 24.0, "fused {fused:.2} dB against the truth");
-    // By default the raw takes are not kept: the picture is all there is.
-    assert_eq!(names(dir.path()), ["out.png"]);
+    // Developed in full only where the picture keeps a frame: some, not all of the six.
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let developed = &r["developed_in_full"];
+    let worth = developed["frames"].as_f64().unwrap();
+    assert!(developed["pixels"].as_u64().unwrap() > 0, "{r}");
+    assert!(worth > 0.0 && worth < 6.0, "{r}");
+    // By default the raw takes are not kept: the picture and the report are all there is.
+    assert_eq!(names(dir.path()), ["out.png", "report.json"]);
 }
 
 /// `focusd capture ARGS --replay` of the raw bundle into `out`, which must succeed.

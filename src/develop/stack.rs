@@ -25,6 +25,11 @@ impl RawStack {
         });
         Ok(RawStack { frames, developer })
     }
+
+    /// The raw frames.
+    pub fn takes(&self) -> &[RawFrame] {
+        &self.frames
+    }
 }
 
 /// Bytes developing one `width`×`height` raw frame takes while it runs: its samples in linear
