@@ -252,6 +252,62 @@ fn raw_bundle_develops_its_takes_after_the_sweep() {
     assert_eq!(names(dir.path()), ["out.png", "report.json"]);
 }
 
+/// A raw take says its white balance, and the development keeps to it: the simulator's takes
+/// need none (camera RGB is the scene's linear sRGB), so a warm scene captured raw, and its DNGs
+/// fused, keep the truth's colour, where grey-world would have made it neutral.
+#[test]
+fn a_raw_capture_keeps_the_scenes_colour() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = dir.path().join("warm");
+    let focusd = || Command::new(env!("CARGO_BIN_EXE_focusd"));
+    let o = focusd()
+        .args([
+            "simulate", "--width", "320", "--height", "240", "--planes", "4",
+        ])
+        .args(["--seed", "46", "--handheld", "--bundle", "--raw", "-o"])
+        .arg(&bundle)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mean = |p: &Path| {
+        let img = load(p);
+        let mut sum = [0f64; 3];
+        for px in img.data().chunks_exact(3) {
+            for c in 0..3 {
+                sum[c] += f64::from(px[c]);
+            }
+        }
+        sum.map(|s| s / (img.width() * img.height()) as f64)
+    };
+    let truth = mean(&bundle.join("truth.png"));
+    assert!(truth[0] - truth[2] > 12.0, "not a warm scene: {truth:?}");
+    let captured = dir.path().join("captured.png");
+    let o = focusd()
+        .args(["capture", "--replay"])
+        .arg(&bundle)
+        .arg("-o")
+        .arg(&captured)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fused = dir.path().join("fused.png");
+    let o = focusd()
+        .args(["fuse", "-o"])
+        .arg(&fused)
+        .args((0..4).map(|p| bundle.join(format!("plane{p:02}_take0.dng"))))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for out in [&captured, &fused] {
+        let m = mean(out);
+        assert!(
+            m.iter().zip(truth).all(|(a, b)| (a - b).abs() < 2.0),
+            "{}: mean colour {m:?}, the truth's {truth:?}",
+            out.display()
+        );
+    }
+}
+
 /// `focusd capture ARGS --replay` of the raw bundle into `out`, which must succeed.
 fn capture_raw(args: &[&Path], out: &Path) {
     let o = Command::new(env!("CARGO_BIN_EXE_focusd"))

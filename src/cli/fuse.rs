@@ -134,7 +134,8 @@ enum Input<T> {
 }
 
 /// DNG frames, each turned upright, to be developed as the camera's raw takes are (one white
-/// balance for the stack, from the first frame). A stack is all DNG or none.
+/// balance for the stack: the first frame's AsShotNeutral, or grey-world measured on it where
+/// it has none). A stack is all DNG or none.
 fn raw_stack(paths: &[PathBuf]) -> Result<RawStack> {
     if let Some(p) = paths.iter().find(|p| !dng::is_dng(p)) {
         bail!(
@@ -155,7 +156,7 @@ fn raw_stack(paths: &[PathBuf]) -> Result<RawStack> {
         .into_iter()
         .map(|d| upright(d.raw, d.orientation))
         .collect::<Result<_>>()?;
-    RawStack::new(frames, None).map_err(anyhow::Error::msg)
+    RawStack::new(frames).map_err(anyhow::Error::msg)
 }
 
 /// A raw frame turned by `o`: its samples turned as a picture's pixels are, the Bayer order

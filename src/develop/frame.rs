@@ -20,6 +20,11 @@ pub struct RawFrame {
     pub black_level: u32,
     /// Camera RGB (balanced) to linear sRGB, row by row.
     pub matrix: [[f32; 3]; 3],
+    /// The gains for red, green and blue (green 1) that make a grey of the scene grey, as the
+    /// take knew them when it was made (a DNG's AsShotNeutral; the simulator's takes, whose
+    /// camera RGB is linear sRGB, have 1); `None` for a camera that says nothing (then the
+    /// stack's development measures grey-world).
+    pub white_balance: Option<[f32; 3]>,
 }
 
 /// How a raw frame sits in its buffer and what develops it.
@@ -55,6 +60,7 @@ impl RawFrame {
             order: l.order,
             black_level: l.black_level,
             matrix: l.matrix,
+            white_balance: None,
         })
     }
 

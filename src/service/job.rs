@@ -282,10 +282,9 @@ pub fn run(
         }
         Frames::Raw(raws) => {
             let params = fuse_cfg.params(raws.len());
-            let stack =
-                RawStack::new(raws, None).map_err(|e| CaptureError::device("raw frame 0", e))?;
-            // The raw takes to keep are written first: from here on the engine develops them,
-            // and they land with the picture or not at all.
+            let stack = RawStack::new(raws).map_err(|e| CaptureError::device("raw frame 0", e))?;
+            // The raw takes to keep are written first, with the stack's white balance: from
+            // here on the engine develops them, and they land with the picture or not at all.
             let t = Instant::now();
             for (raw, kept) in stack.takes().iter().zip(&kept) {
                 if let Some((path, exposure)) = kept {
