@@ -70,19 +70,24 @@ impl RawFrame {
         self.packing.bits()
     }
 
+    /// The samples as integers, row by row, unpacked.
+    pub fn samples(&self) -> Result<Vec<u16>, String> {
+        raw::unpack(
+            self.packing,
+            self.width,
+            self.height,
+            self.stride,
+            &self.bytes,
+        )
+    }
+
     /// The frame turned by `o`: its samples turned as a picture's pixels are, the Bayer order
     /// the one now at the top left, packed as before.
     pub fn upright(self, o: Orientation) -> Result<RawFrame, String> {
         if o == Orientation::UPRIGHT {
             return Ok(self);
         }
-        let samples = raw::unpack(
-            self.packing,
-            self.width,
-            self.height,
-            self.stride,
-            &self.bytes,
-        )?;
+        let samples = self.samples()?;
         let turned = o.turn(&Image::from_vec(self.width, self.height, 1, samples));
         let colours = o.turn(&Image::from_fn(self.width, self.height, 1, |x, y, _| {
             self.order.channel(x, y) as u8
@@ -108,13 +113,7 @@ impl RawFrame {
 
     /// The samples in linear light, black level off.
     pub fn mosaic(&self) -> Result<Mosaic, String> {
-        let samples = raw::unpack(
-            self.packing,
-            self.width,
-            self.height,
-            self.stride,
-            &self.bytes,
-        )?;
+        let samples = self.samples()?;
         Ok(Mosaic::from_samples(
             &samples,
             self.width,

@@ -38,14 +38,7 @@ pub fn encode(frame: &RawFrame, info: &DngInfo) -> Result<Vec<u8>, FileError> {
         path: format!("DNG of {}", info.model),
         reason,
     };
-    let samples = crate::develop::raw::unpack(
-        frame.packing,
-        frame.width,
-        frame.height,
-        frame.stride,
-        &frame.bytes,
-    )
-    .map_err(bad)?;
+    let samples = frame.samples().map_err(bad)?;
     let cm = color_matrix(frame.matrix).ok_or_else(|| {
         bad(format!(
             "colour matrix {:?} is singular: no DNG ColorMatrix1 maps to it",
