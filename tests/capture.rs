@@ -237,12 +237,75 @@ fn raw_bundle_develops_its_takes_after_the_sweep() {
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.png");
-    capture_raw(&[], &out);
+    let report = dir.path().join("report.json");
+    capture_raw(&[Path::new("--report"), &report], &out);
     let truth = load(&bundle_dir("raw").join("truth.png"));
     let fused = psnr(&load(&out), &truth, 0);
     assert!(fused > 24.0, "fused {fused:.2} dB against the truth");
-    // By default the raw takes are not kept: the picture is all there is.
-    assert_eq!(names(dir.path()), ["out.png"]);
+    // Developed in full only where the picture keeps a frame: some, not all of the six.
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let developed = &r["developed_in_full"];
+    let worth = developed["frames"].as_f64().unwrap();
+    assert!(developed["pixels"].as_u64().unwrap() > 0, "{r}");
+    assert!(worth > 0.0 && worth < 6.0, "{r}");
+    // By default the raw takes are not kept: the picture and the report are all there is.
+    assert_eq!(names(dir.path()), ["out.png", "report.json"]);
+}
+
+/// A raw take says its white balance, and the development keeps to it: the simulator's takes
+/// need none (camera RGB is the scene's linear sRGB), so a warm scene captured raw, and its DNGs
+/// fused, keep the truth's colour, where grey-world would have made it neutral.
+#[test]
+fn a_raw_capture_keeps_the_scenes_colour() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = dir.path().join("warm");
+    let focusd = || Command::new(env!("CARGO_BIN_EXE_focusd"));
+    let o = focusd()
+        .args([
+            "simulate", "--width", "320", "--height", "240", "--planes", "4",
+        ])
+        .args(["--seed", "46", "--handheld", "--bundle", "--raw", "-o"])
+        .arg(&bundle)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mean = |p: &Path| {
+        let img = load(p);
+        let mut sum = [0f64; 3];
+        for px in img.data().chunks_exact(3) {
+            for c in 0..3 {
+                sum[c] += f64::from(px[c]);
+            }
+        }
+        sum.map(|s| s / (img.width() * img.height()) as f64)
+    };
+    let truth = mean(&bundle.join("truth.png"));
+    assert!(truth[0] - truth[2] > 12.0, "not a warm scene: {truth:?}");
+    let captured = dir.path().join("captured.png");
+    let o = focusd()
+        .args(["capture", "--replay"])
+        .arg(&bundle)
+        .arg("-o")
+        .arg(&captured)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fused = dir.path().join("fused.png");
+    let o = focusd()
+        .args(["fuse", "-o"])
+        .arg(&fused)
+        .args((0..4).map(|p| bundle.join(format!("plane{p:02}_take0.dng"))))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for out in [&captured, &fused] {
+        let m = mean(out);
+        assert!(
+            m.iter().zip(truth).all(|(a, b)| (a - b).abs() < 2.0),
+            "{}: mean colour {m:?}, the truth's {truth:?}",
+            out.display()
+        );
+    }
 }
 
 /// `focusd capture ARGS --replay` of the raw bundle into `out`, which must succeed.

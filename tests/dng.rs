@@ -35,6 +35,7 @@ fn raw_frame(packing: Packing, order: BayerOrder, samples: &[u16]) -> RawFrame {
         order,
         black_level: ((1u32 << packing.bits()) - 1) / 16,
         matrix: IDENTITY,
+        white_balance: None,
     }
 }
 
@@ -207,6 +208,7 @@ fn fuse_develops_a_dng_stack() {
             order: BayerOrder::Gbrg,
             black_level: 64,
             matrix: IDENTITY,
+            white_balance: None,
         };
         let info = DngInfo {
             orientation: Orientation::clockwise(3),

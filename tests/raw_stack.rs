@@ -28,7 +28,11 @@ fn raw(rgb: &Image<f32>, order: BayerOrder) -> RawFrame {
         black_level: 0,
         matrix: IDENTITY,
     };
-    RawFrame::copy(&bytes, layout).expect("a whole frame")
+    RawFrame {
+        // Camera RGB is the scene's linear sRGB.
+        white_balance: Some([1.0; 3]),
+        ..RawFrame::copy(&bytes, layout).expect("a whole frame")
+    }
 }
 
 /// Fuses `frames` developed in full and lazily; returns the two fused pictures and the pixels
@@ -42,7 +46,7 @@ fn both_ways(frames: &[RawFrame], params: &FuseParams) -> (Image<u8>, Image<u8>,
         .map(|f| dev.develop(f.mosaic().expect("unpacks")))
         .collect();
     let full = fuse(full, params, &NoProgress).expect("fuses");
-    let stack = RawStack::new(frames.to_vec(), Some([1.0; 3])).expect("a stack");
+    let stack = RawStack::new(frames.to_vec()).expect("a stack");
     let lazy = fuse_developing(&stack, params, &NoProgress).expect("fuses");
     let developed = lazy.developed.expect("counted").pixels;
     (full.image, lazy.image, developed)

@@ -44,7 +44,7 @@ fn both(
         full = Some(fuse(frames, params, &NoProgress).expect("fuses"));
         times[0].push(t.elapsed());
         let t = Instant::now();
-        let stack = RawStack::new(raws.to_vec(), Some([1.0; 3])).expect("a stack");
+        let stack = RawStack::new(raws.to_vec()).expect("a stack");
         let f = fuse_developing(&stack, params, &NoProgress).expect("fuses");
         times[1].push(t.elapsed());
         worth = f.developed.expect("counted").frames();

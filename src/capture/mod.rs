@@ -23,7 +23,8 @@ pub enum Stage {
     WaitingStill,
     /// Taking the planes.
     Sweeping,
-    /// Developing the raw takes, once the lens is done.
+    /// Developing the raw takes, once the lens is done (in a job, the engine's
+    /// `stack::Stage::Develop`).
     Developing,
     /// The engine's work on the frames.
     Fuse(crate::stack::Stage),
@@ -40,9 +41,14 @@ impl Stage {
     }
 }
 
+/// The engine's stages as a job's; its development of raw frames (cheap before the fuse, in
+/// full before the compose) is the job's one `Developing` stage.
 impl From<crate::stack::Stage> for Stage {
     fn from(s: crate::stack::Stage) -> Self {
-        Stage::Fuse(s)
+        match s {
+            crate::stack::Stage::Develop => Stage::Developing,
+            s => Stage::Fuse(s),
+        }
     }
 }
 

@@ -84,6 +84,12 @@ pub fn run(a: &CaptureArgs) -> Result<()> {
     let report = report?;
     print_planes(&report.planes);
     eprintln!("  order {}", report.focus_order);
+    if let Some(d) = &report.developed_in_full {
+        eprintln!(
+            "  develop {} px in full ({:.2} frames' worth)",
+            d.pixels, d.frames
+        );
+    }
     let m = &report.memory;
     let raise = "raise [fuse] memory_mb";
     eprintln!(

@@ -2,11 +2,9 @@
 
 use super::progress::Bar;
 use anyhow::{bail, Context, Result};
-use focusd::develop::raw;
-use focusd::develop::{stack::working_bytes, BayerOrder, RawFrame, RawStack};
+use focusd::develop::{stack::working_bytes, RawStack};
 use focusd::files::dng;
 use focusd::files::imageio::{self as io, Decoded, Header};
-use focusd::files::orientation::Orientation;
 use focusd::files::outputs::Outputs;
 use focusd::files::FileError;
 use focusd::service::fuse_settings::FuseSettings;
@@ -134,7 +132,8 @@ enum Input<T> {
 }
 
 /// DNG frames, each turned upright, to be developed as the camera's raw takes are (one white
-/// balance for the stack, from the first frame). A stack is all DNG or none.
+/// balance for the stack: the first frame's AsShotNeutral, or grey-world measured on it where
+/// it has none). A stack is all DNG or none.
 fn raw_stack(paths: &[PathBuf]) -> Result<RawStack> {
     if let Some(p) = paths.iter().find(|p| !dng::is_dng(p)) {
         bail!(
@@ -153,41 +152,14 @@ fn raw_stack(paths: &[PathBuf]) -> Result<RawStack> {
         .collect::<Result<_, FileError>>()?;
     let frames = read
         .into_iter()
-        .map(|d| upright(d.raw, d.orientation))
+        .zip(paths)
+        .map(|(d, p)| {
+            d.raw
+                .upright(d.orientation)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+        })
         .collect::<Result<_>>()?;
-    RawStack::new(frames, None).map_err(anyhow::Error::msg)
-}
-
-/// A raw frame turned by `o`: its samples turned as a picture's pixels are, the Bayer order
-/// the one now at the top left.
-fn upright(f: RawFrame, o: Orientation) -> Result<RawFrame> {
-    if o == Orientation::UPRIGHT {
-        return Ok(f);
-    }
-    let samples = raw::unpack(f.packing, f.width, f.height, f.stride, &f.bytes)
-        .map_err(anyhow::Error::msg)?;
-    let turned = o.turn(&Image::from_vec(f.width, f.height, 1, samples));
-    let colours = o.turn(&Image::from_fn(f.width, f.height, 1, |x, y, _| {
-        f.order.channel(x, y) as u8
-    }));
-    let order = [
-        BayerOrder::Rggb,
-        BayerOrder::Bggr,
-        BayerOrder::Grbg,
-        BayerOrder::Gbrg,
-    ]
-    .into_iter()
-    .find(|b| (0..4).all(|k| b.channel(k % 2, k / 2) == colours.at(k % 2, k / 2, 0) as usize))
-    .expect("a Bayer pattern turned is a Bayer pattern");
-    let bytes = raw::pack(f.packing, turned.width(), turned.data());
-    Ok(RawFrame {
-        stride: f.packing.row_bytes(turned.width()),
-        bytes,
-        width: turned.width(),
-        height: turned.height(),
-        order,
-        ..f
-    })
+    RawStack::new(frames).map_err(anyhow::Error::msg)
 }
 
 /// Reads every frame's header and refuses, before any frame is decoded, frames of different

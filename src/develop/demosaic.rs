@@ -138,16 +138,19 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
     in_strips(m, STRIP_ROWS)
 }
 
-/// [`demosaic`] over each of `rects` (x, y, width, height) only, exactly as the whole frame's
-/// development gives them: each is developed with the mosaic around it as far as an output
-/// pixel's value reaches (`PAD`), the rectangles in parallel.
-pub fn demosaic_regions(m: &Mosaic, rects: &[(usize, usize, usize, usize)]) -> Vec<Image<f32>> {
+/// A rectangle of a frame: x, y, width, height.
+type Region = (usize, usize, usize, usize);
+
+/// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them:
+/// each is developed with the mosaic around it as far as an output pixel's value reaches
+/// (`PAD`), rectangles close together in one window ([`windows`]), the windows in parallel.
+pub fn demosaic_regions(m: &Mosaic, rects: &[Region]) -> Vec<Image<f32>> {
     let srgb::Tabulated { encode, decode } = srgb::tabulated();
     let p = Padded::new(m, |v| encode.at(v));
     let spare = Mutex::new(Vec::<Workspace>::new());
-    rects
+    let pieces: Vec<Vec<(usize, Image<f32>)>> = windows(rects, m.width)
         .par_iter()
-        .map(|&(x, y, width, height)| {
+        .map(|&((x, y, width, height), ref members)| {
             assert!(
                 x + width <= m.width && y + height <= m.height,
                 "region outside the mosaic"
@@ -163,17 +166,71 @@ pub fn demosaic_regions(m: &Mosaic, rects: &[(usize, usize, usize, usize)]) -> V
             let mut ws = taken.unwrap_or_default();
             residual_interpolation(&window, ww, m.order, &mut ws);
             let planes = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
-            let (dx, dy) = (x - x0, y - y0);
-            let img = Image::from_fn(width, height, 3, |xx, yy, c| {
-                decode.at(planes[c][(yy + dy + PAD) * ww + xx + dx + PAD])
-            });
+            let cut = members
+                .iter()
+                .map(|&k| {
+                    let (rx, ry, rw, rh) = rects[k];
+                    let (dx, dy) = (rx - x0 + PAD, ry - y0 + PAD);
+                    let img = Image::from_fn(rw, rh, 3, |xx, yy, c| {
+                        decode.at(planes[c][(yy + dy) * ww + xx + dx])
+                    });
+                    (k, img)
+                })
+                .collect();
             spare
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
                 .push(ws);
-            img
+            cut
         })
+        .collect();
+    let mut out: Vec<Option<Image<f32>>> = rects.iter().map(|_| None).collect();
+    for (k, img) in pieces.into_iter().flatten() {
+        out[k] = Some(img);
+    }
+    out.into_iter()
+        .map(|img| img.expect("every rectangle is in a window"))
         .collect()
+}
+
+/// `rects` grouped into windows, each developed once: two become one where the window around
+/// both, with its halo of `PAD` on every side, costs no more than their two, and no more than a
+/// strip of a `width`-wide frame's whole development (so no more memory). Each window with the
+/// indices of the rectangles it holds.
+fn windows(rects: &[Region], width: usize) -> Vec<(Region, Vec<usize>)> {
+    let cost = |(_, _, w, h): Region| (w + 2 * PAD) * (h + 2 * PAD);
+    let cap = (width + 2 * PAD) * (STRIP_ROWS + 2 * PAD);
+    let union = |a: Region, b: Region| {
+        let (x, y) = (a.0.min(b.0), a.1.min(b.1));
+        let (r, bottom) = ((a.0 + a.2).max(b.0 + b.2), (a.1 + a.3).max(b.1 + b.3));
+        (x, y, r - x, bottom - y)
+    };
+    let mut groups: Vec<(Region, Vec<usize>)> = rects
+        .iter()
+        .enumerate()
+        .map(|(k, &r)| (r, vec![k]))
+        .collect();
+    let mut merged = true;
+    while merged {
+        merged = false;
+        let mut i = 0;
+        while i < groups.len() {
+            let mut j = i + 1;
+            while j < groups.len() {
+                let u = union(groups[i].0, groups[j].0);
+                if cost(u) <= (cost(groups[i].0) + cost(groups[j].0)).min(cap) {
+                    let (_, members) = groups.swap_remove(j);
+                    groups[i].0 = u;
+                    groups[i].1.extend(members);
+                    merged = true;
+                } else {
+                    j += 1;
+                }
+            }
+            i += 1;
+        }
+    }
+    groups
 }
 
 /// [`demosaic`] computed `rows` output rows at a time.
@@ -732,12 +789,19 @@ pub(super) mod tests {
         let whole = demosaic(&m);
         // Inside, on odd coordinates, and against each edge of the frame.
         let (w, h) = (m.width, m.height);
+        // Two just below the first, developed in one window with it.
         let rects = [
             (101, 77, 60, 33),
             (0, 0, 50, 40),
             (w - 31, h - 20, 31, 20),
             (3, 1, w - 5, 9),
+            (99, 110, 64, 32),
+            (120, 142, 9, 7),
         ];
+        let grouped = windows(&rects, w);
+        assert!(grouped.len() < rects.len(), "{grouped:?}");
+        let first = grouped.iter().find(|(_, k)| k.contains(&0)).expect("held");
+        assert!(first.1.contains(&4) && first.1.contains(&5), "{grouped:?}");
         for (part, r) in demosaic_regions(&m, &rects).iter().zip(rects) {
             let (x, y, rw, rh) = r;
             assert_eq!((part.width(), part.height()), (rw, rh));

@@ -4,6 +4,7 @@
 
 use super::raw::{self, Packing};
 use super::{encode, BayerOrder, Developer, Mosaic};
+use crate::files::orientation::Orientation;
 use crate::stack::image::Image;
 
 #[derive(Clone, Debug, PartialEq)]
@@ -20,6 +21,11 @@ pub struct RawFrame {
     pub black_level: u32,
     /// Camera RGB (balanced) to linear sRGB, row by row.
     pub matrix: [[f32; 3]; 3],
+    /// The gains for red, green and blue (green 1) that make a grey of the scene grey, as the
+    /// take knew them when it was made (a DNG's AsShotNeutral; the simulator's takes, whose
+    /// camera RGB is linear sRGB, have 1); `None` for a camera that says nothing (then the
+    /// stack's development measures grey-world).
+    pub white_balance: Option<[f32; 3]>,
 }
 
 /// How a raw frame sits in its buffer and what develops it.
@@ -55,6 +61,7 @@ impl RawFrame {
             order: l.order,
             black_level: l.black_level,
             matrix: l.matrix,
+            white_balance: None,
         })
     }
 
@@ -63,15 +70,50 @@ impl RawFrame {
         self.packing.bits()
     }
 
-    /// The samples in linear light, black level off.
-    pub fn mosaic(&self) -> Result<Mosaic, String> {
-        let samples = raw::unpack(
+    /// The samples as integers, row by row, unpacked.
+    pub fn samples(&self) -> Result<Vec<u16>, String> {
+        raw::unpack(
             self.packing,
             self.width,
             self.height,
             self.stride,
             &self.bytes,
-        )?;
+        )
+    }
+
+    /// The frame turned by `o`: its samples turned as a picture's pixels are, the Bayer order
+    /// the one now at the top left, packed as before.
+    pub fn upright(self, o: Orientation) -> Result<RawFrame, String> {
+        if o == Orientation::UPRIGHT {
+            return Ok(self);
+        }
+        let samples = self.samples()?;
+        let turned = o.turn(&Image::from_vec(self.width, self.height, 1, samples));
+        let colours = o.turn(&Image::from_fn(self.width, self.height, 1, |x, y, _| {
+            self.order.channel(x, y) as u8
+        }));
+        let order = [
+            BayerOrder::Rggb,
+            BayerOrder::Bggr,
+            BayerOrder::Grbg,
+            BayerOrder::Gbrg,
+        ]
+        .into_iter()
+        .find(|b| (0..4).all(|k| b.channel(k % 2, k / 2) == colours.at(k % 2, k / 2, 0) as usize))
+        .expect("a Bayer pattern turned is a Bayer pattern");
+        Ok(RawFrame {
+            stride: self.packing.row_bytes(turned.width()),
+            bytes: raw::pack(self.packing, turned.width(), turned.data()),
+            width: turned.width(),
+            height: turned.height(),
+            order,
+            ..self
+        })
+    }
+
+    /// The samples in linear light, black level off.
+    pub fn mosaic(&self) -> Result<Mosaic, String> {
+        let samples = self.samples()?;
         Ok(Mosaic::from_samples(
             &samples,
             self.width,
@@ -141,6 +183,20 @@ mod tests {
         assert_eq!(e, "4x2 frame: buffer of 9 bytes is too short, 10 needed");
         let e = RawFrame::copy(&buffer, layout(1, 2, 0)).expect_err("tiny");
         assert_eq!(e, "frame 1x2 is smaller than 2x2");
+    }
+
+    #[test]
+    fn a_turned_frame_keeps_each_sample_and_its_colour() {
+        // 4×2 GRBG, samples 0..8 row by row; a quarter turn clockwise makes it 2×4.
+        let bytes: Vec<u8> = (0..8).collect();
+        let f = RawFrame::copy(&bytes, layout(4, 2, 0)).expect("fits");
+        let t = f.clone().upright(Orientation::clockwise(1)).expect("turns");
+        assert_eq!((t.width, t.height, t.stride), (2, 4, 2));
+        // The old bottom-left sample (4, blue in GRBG) is now at the top left.
+        assert_eq!(t.bytes, [4, 0, 5, 1, 6, 2, 7, 3]);
+        assert_eq!(t.order, BayerOrder::Bggr);
+        let back = (0..3).try_fold(t, |t, _| t.upright(Orientation::clockwise(1)));
+        assert_eq!(back.expect("turns"), f);
     }
 
     #[test]

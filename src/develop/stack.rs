@@ -13,17 +13,28 @@ pub struct RawStack {
 }
 
 impl RawStack {
-    /// The stack of `frames` with the white balance `gains`, or (`None`) as measured on the
-    /// first frame, as a sweep's developer measures it. The frames must share one geometry; the
-    /// fuse checks it on the cheap developments.
-    pub fn new(frames: Vec<RawFrame>, gains: Option<[f32; 3]>) -> Result<RawStack, String> {
+    /// The stack of `frames`, developed with one white balance: the first frame's own
+    /// ([`RawFrame::white_balance`]), or grey-world measured on it where it has none, as a
+    /// sweep's developer measures it. Every frame is given that balance, so what they say (a
+    /// DNG's AsShotNeutral) is what they were developed with. The frames must share one
+    /// geometry; the fuse checks it on the cheap developments.
+    pub fn new(mut frames: Vec<RawFrame>) -> Result<RawStack, String> {
         let first = frames.first().ok_or("no raw frames to develop")?;
         let mut developer = Developer::new(first.black_level, first.matrix);
-        developer.white_balance = Some(match gains {
+        let gains = match first.white_balance {
             Some(g) => g,
             None => grey_world(&[&first.mosaic()?]),
-        });
+        };
+        developer.white_balance = Some(gains);
+        for f in &mut frames {
+            f.white_balance = Some(gains);
+        }
         Ok(RawStack { frames, developer })
+    }
+
+    /// The raw frames, with the stack's white balance.
+    pub fn takes(&self) -> &[RawFrame] {
+        &self.frames
     }
 }
 

@@ -7,21 +7,21 @@ use super::fuse_settings::FuseSettings;
 use super::output_dir;
 use super::ServiceError;
 use crate::backend::iio::IioImu;
-use crate::backend::replay::faults::{self, Fault};
+use crate::backend::replay::faults::{self, Fault, HeldDevelopment};
 use crate::backend::replay::{self, Bundle};
 use crate::backend::sys::MonotonicClock;
 use crate::backend::v4l2;
-use crate::base::clip;
 use crate::capture::hold::Hold;
 use crate::capture::record::take_dng;
 use crate::capture::sweep::{sweep_takes, Monitor, PlaneReport, Sweep, SweepConfig};
-use crate::capture::{self, Camera, CaptureError, Clock, Frame, Imu, Nanos};
-use crate::develop::StackDeveloper;
+use crate::capture::{Camera, CaptureError, Clock, Frame, Imu, Nanos};
+use crate::develop::{RawFrame, RawStack};
 use crate::files::orientation::{tag_jpeg, Orientation};
 use crate::files::outputs::Outputs;
-use crate::stack::fuse::{fuse, FuseError};
+use crate::stack::fuse::{fuse, fuse_developing, FuseError};
+use crate::stack::image::Image;
 use crate::stack::memory::{mib, Plan};
-use crate::stack::Progress;
+use crate::stack::{Developed, Progress, Stage};
 use image::ImageFormat;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -123,15 +123,73 @@ pub struct Report {
     pub planes: Vec<PlaneReport>,
     /// Sweep duration on the capture clock (simulated time in a replay), ms.
     pub sweep_ms: f64,
-    /// Wall time of `capture` (the sweep), `develop` (its raw takes; 0 for a camera that
-    /// delivers pictures), `register`, `fuse` and `save`, ms.
+    /// Wall time of `capture` (the sweep), `develop` (its raw takes, cheaply in whole and in
+    /// full where the picture keeps them; 0 for a camera that delivers pictures), `register`,
+    /// `fuse` and `save` (the picture, the report and any raw takes kept), ms.
     pub timings_ms: BTreeMap<&'static str, f64>,
+    /// What of the raw takes was developed at full quality (`None` for pictures).
+    pub developed_in_full: Option<DevelopedReport>,
     pub memory: MemoryReport,
     /// Which way the frames were focused, as the occlusion edges tell (`OrderEvidence`'s line).
     pub focus_order: String,
     /// Which way the picture is turned upright, and from what.
     pub orientation: OrientationReport,
     pub output: String,
+}
+
+/// The pixels developed at full quality over all frames, and how many frames' worth that is.
+#[derive(Clone, Debug, Serialize)]
+pub struct DevelopedReport {
+    pub pixels: usize,
+    pub frames: f64,
+}
+
+impl From<&Developed> for DevelopedReport {
+    fn from(d: &Developed) -> Self {
+        Self {
+            pixels: d.pixels,
+            frames: d.frames(),
+        }
+    }
+}
+
+/// A sweep's frames: all pictures, or all raw takes.
+enum Frames {
+    Pictures(Vec<Image<u8>>),
+    Raw(Vec<RawFrame>),
+}
+
+impl Frames {
+    /// The frames sorted by kind; a sweep that mixes them is an error (no camera delivers both
+    /// in one stream, and a stack of both would be developed two ways).
+    fn of(frames: Vec<Frame>) -> std::result::Result<Frames, CaptureError> {
+        let raw = |f: &Frame| matches!(f, Frame::Raw(_));
+        if let (Some(r), Some(p)) = (
+            frames.iter().position(raw),
+            frames.iter().position(|f| !raw(f)),
+        ) {
+            return Err(CaptureError::device(
+                "camera",
+                format!(
+                    "plane {r} is a raw frame but plane {p} a picture: a stack is developed one \
+                     way, so its frames must be all raw or all pictures"
+                ),
+            ));
+        }
+        let mut pictures = Vec::new();
+        let mut raws = Vec::new();
+        for f in frames {
+            match f {
+                Frame::Picture(p) => pictures.push(p),
+                Frame::Raw(r) => raws.push(r),
+            }
+        }
+        Ok(if raws.is_empty() {
+            Frames::Pictures(pictures)
+        } else {
+            Frames::Raw(raws)
+        })
+    }
 }
 
 /// The picture's turn: its EXIF Orientation (written into a JPEG, applied to PNG and TIFF
@@ -215,21 +273,40 @@ pub fn run(
         kept.push(path.map(|p| (p, (t.exposure_start, t.exposure_end))));
     }
     let capture_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let t_develop = Instant::now();
-    let mut developer = StackDeveloper::default();
-    let frames = takes.into_iter().map(|t| t.frame).collect();
-    let frames = capture::develop(frames, monitor, &mut |i, raw| {
-        faults::hold_development(&rig.faults, i, monitor);
-        if let Some((path, exposure)) = &kept[i] {
-            let dng =
-                take_dng(raw, *exposure, "focusd capture", upright).map_err(|e| clip::chain(&e))?;
-            outs.write(path, &dng).map_err(|e| clip::chain(&e))?;
+    let frames = Frames::of(takes.into_iter().map(|t| t.frame).collect())?;
+    let mut kept_ms = 0.0;
+    let fused = match frames {
+        Frames::Pictures(frames) => {
+            let params = fuse_cfg.params(frames.len());
+            fuse(frames, &params, progress)?
         }
-        developer.develop(raw)
-    })?;
-    let develop_ms = t_develop.elapsed().as_secs_f64() * 1e3;
-    let params = fuse_cfg.params(frames.len());
-    let fused = fuse(frames, &params, progress)?;
+        Frames::Raw(raws) => {
+            let params = fuse_cfg.params(raws.len());
+            let stack = RawStack::new(raws).map_err(|e| CaptureError::device("raw frame 0", e))?;
+            // The raw takes to keep are written first, with the stack's white balance: from
+            // here on the engine develops them, and they land with the picture or not at all.
+            let t = Instant::now();
+            for (raw, kept) in stack.takes().iter().zip(&kept) {
+                if let Some((path, exposure)) = kept {
+                    if monitor.cancelled() {
+                        return Err(CaptureError::Cancelled.into());
+                    }
+                    outs.write(path, &take_dng(raw, *exposure, "focusd capture", upright)?)?;
+                }
+            }
+            kept_ms = t.elapsed().as_secs_f64() * 1e3;
+            let held = HeldDevelopment {
+                stack: &stack,
+                faults: &rig.faults,
+                progress,
+            };
+            let fused = fuse_developing(&held, &params, progress)?;
+            if let Some(d) = &fused.developed {
+                tracing::info!("develop: {d}");
+            }
+            fused
+        }
+    };
     if !fused.memory.fits() {
         tracing::warn!("{}; raise [fuse] memory_mb", fused.memory);
     }
@@ -253,20 +330,21 @@ pub fn run(
         crate::files::imageio::encode(&turned, format, fuse_cfg.quality)?
     };
     outs.write(output, &bytes)?;
-    let mut timings = BTreeMap::from([("capture", capture_ms), ("develop", develop_ms)]);
+    let mut timings = BTreeMap::from([("capture", capture_ms), ("develop", 0.0)]);
     for (stage, d) in &fused.timings {
-        let key = if stage.registers() {
-            "register"
-        } else {
-            "fuse"
+        let key = match stage {
+            Stage::Develop => "develop",
+            s if s.registers() => "register",
+            _ => "fuse",
         };
         *timings.entry(key).or_default() += d.as_secs_f64() * 1e3;
     }
-    timings.insert("save", t.elapsed().as_secs_f64() * 1e3);
+    timings.insert("save", kept_ms + t.elapsed().as_secs_f64() * 1e3);
     let r = Report {
         planes,
         sweep_ms: (ended - started) as f64 * 1e-6,
         timings_ms: timings,
+        developed_in_full: fused.developed.as_ref().map(DevelopedReport::from),
         memory: MemoryReport::from(&fused.memory),
         focus_order: fused.order.to_string(),
         orientation: OrientationReport {

@@ -49,6 +49,8 @@ pub fn raw_take(picture: &Image<u8>) -> RawFrame {
         order: RAW_ORDER,
         black_level: u32::from(RAW_BLACK),
         matrix: IDENTITY,
+        // Camera RGB is the scene's linear sRGB: a grey is grey as it comes.
+        white_balance: Some([1.0; 3]),
     }
 }
 

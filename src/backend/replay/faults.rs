@@ -3,8 +3,9 @@
 //! exactly where a phone would hit them: at a given plane of the sweep, or at a frame of the
 //! development after it.
 
-use crate::capture::sweep::Monitor;
 use crate::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Take};
+use crate::stack::image::Image;
+use crate::stack::{Develop, Progress, Rect};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
@@ -20,8 +21,9 @@ pub enum Fault {
     ImuNan(usize),
     /// Moving the lens to this plane panics, as a bug would.
     Panic(usize),
-    /// Developing this raw frame waits until the job is cancelled: a job held in the
-    /// `developing` stage, for tests of what a client sees and may do then.
+    /// Developing this raw frame (its cheap development, the first the job does of it) waits
+    /// until the job is cancelled: a job held in the `developing` stage, for tests of what a
+    /// client sees and may do then.
     DevelopHold(usize),
 }
 
@@ -51,13 +53,39 @@ impl std::str::FromStr for Fault {
     }
 }
 
-/// Holds the development of raw frame `frame` where `faults` say so: returns once `monitor`
-/// says the job is cancelled, asking every few milliseconds (which also beats its heartbeat).
-pub fn hold_development(faults: &[Fault], frame: usize, monitor: &dyn Monitor) {
-    if faults.contains(&Fault::DevelopHold(frame)) {
-        while !monitor.cancelled() {
-            std::thread::sleep(std::time::Duration::from_millis(5));
+/// A raw stack whose development of frame `i` waits where `faults` say so
+/// ([`Fault::DevelopHold`]): until `progress` says the job is cancelled, asking every few
+/// milliseconds (which also beats its heartbeat).
+pub struct HeldDevelopment<'a, T> {
+    pub stack: &'a dyn Develop<T>,
+    pub faults: &'a [Fault],
+    pub progress: &'a dyn Progress,
+}
+
+impl<T> Develop<T> for HeldDevelopment<'_, T> {
+    fn frames(&self) -> usize {
+        self.stack.frames()
+    }
+
+    fn cheap(&self, i: usize) -> Result<Image<T>, String> {
+        if self.faults.contains(&Fault::DevelopHold(i)) {
+            while !self.progress.cancelled() {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
         }
+        self.stack.cheap(i)
+    }
+
+    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<T>>, String> {
+        self.stack.full(i, rects)
+    }
+
+    fn held_bytes(&self) -> usize {
+        self.stack.held_bytes()
+    }
+
+    fn working_bytes(&self) -> usize {
+        self.stack.working_bytes()
     }
 }
 

@@ -236,6 +236,8 @@ struct Main {
     black: [f64; 4],
     white: u64,
     matrix: [[f32; 3]; 3],
+    /// The white balance gains of AsShotNeutral, where the file has it.
+    white_balance: Option<[f32; 3]>,
     orientation: Orientation,
     chunks: Chunks,
 }
@@ -274,6 +276,7 @@ fn named(t: u16) -> &'static str {
         tag::WHITE_LEVEL => "WhiteLevel",
         tag::COLOR_MATRIX_1 => "ColorMatrix1",
         tag::COLOR_MATRIX_2 => "ColorMatrix2",
+        tag::AS_SHOT_NEUTRAL => "AsShotNeutral",
         tag::ACTIVE_AREA => "ActiveArea",
         _ => "tag",
     }
@@ -483,6 +486,7 @@ impl Main {
             }
         };
         let matrix = Self::matrix(&t, &ifd0)?;
+        let white_balance = Self::white_balance(&t, &ifd0)?;
         let chunks = if ifd.contains_key(&tag::TILE_OFFSETS) {
             Chunks::Tiles {
                 width: one(ifd, tag::TILE_WIDTH, None)? as usize,
@@ -506,9 +510,26 @@ impl Main {
             black,
             white,
             matrix,
+            white_balance,
             orientation,
             chunks,
         })
+    }
+
+    /// The gains of AsShotNeutral (the camera's RGB of a neutral grey): its inverse, green's
+    /// gain 1. `None` where the file has none (AsShotWhiteXY alone is not read).
+    fn white_balance(t: &Tiff, ifd0: &Ifd) -> Parsed<Option<[f32; 3]>> {
+        let Some(&e) = ifd0.get(&tag::AS_SHOT_NEUTRAL) else {
+            return Ok(None);
+        };
+        match t.reals(e, named(tag::AS_SHOT_NEUTRAL))?[..] {
+            [r, g, b] if [r, g, b].iter().all(|v| v.is_finite() && *v > 1e-6) => {
+                Ok(Some([(g / r) as f32, 1.0, (g / b) as f32]))
+            }
+            ref v => Err(format!(
+                "AsShotNeutral = {v:?}: focusd reads three positive values (red, green, blue)"
+            )),
+        }
     }
 
     /// The development matrix of the D65 colour matrix (ColorMatrix1 if none is for D65); the
@@ -694,6 +715,7 @@ impl Main {
             order: self.order,
             black_level: black,
             matrix: self.matrix,
+            white_balance: self.white_balance,
         }
     }
 }

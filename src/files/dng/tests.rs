@@ -20,6 +20,7 @@ pub(super) fn frame(packing: Packing, order: BayerOrder, width: usize, height: u
         order,
         black_level: max / 16,
         matrix: IDENTITY,
+        white_balance: None,
     }
 }
 
@@ -140,8 +141,10 @@ fn what_focusd_writes_reads_back_exactly() {
     ];
     for (i, order) in orders.into_iter().enumerate() {
         for packing in [Packing::Bits8, Packing::Le10, Packing::Le16] {
+            // Half the frames say their white balance, the others leave it to grey-world.
             let f = RawFrame {
                 matrix: [[1.6, -0.4, -0.2], [-0.25, 1.5, -0.25], [0.0, -0.6, 1.6]],
+                white_balance: (i % 2 == 0).then_some([2.0, 1.0, 1.25]),
                 ..frame(packing, order, 10, 6)
             };
             let info = DngInfo {
@@ -153,10 +156,18 @@ fn what_focusd_writes_reads_back_exactly() {
             assert_eq!(
                 RawFrame {
                     matrix: f.matrix,
+                    white_balance: f.white_balance,
                     ..back.raw.clone()
                 },
                 f
             );
+            let gains = back.raw.white_balance.expect("AsShotNeutral read");
+            let expected = f
+                .white_balance
+                .unwrap_or_else(|| crate::develop::grey_world(&[&f.mosaic().expect("unpacks")]));
+            for (a, b) in gains.iter().zip(expected) {
+                assert!((a - b).abs() < 1e-5, "{gains:?} against {expected:?}");
+            }
             for (a, b) in back
                 .raw
                 .matrix
@@ -210,6 +221,21 @@ fn unsupported_dngs_are_refused_naming_the_tag_and_value() {
     let e = refused(274, &2u16.to_le_bytes());
     assert!(
         e.starts_with("Orientation = 2: focusd reads unmirrored"),
+        "{e}"
+    );
+    // AsShotNeutral with a zero for red (its three rationals lie outside the entry).
+    let mut zero = good.clone();
+    let ifd = u32::from_le_bytes(zero[4..8].try_into().unwrap()) as usize;
+    let n = u16::from_le_bytes([zero[ifd], zero[ifd + 1]]) as usize;
+    let e = (0..n)
+        .map(|i| ifd + 2 + 12 * i)
+        .find(|&e| u16::from_le_bytes([zero[e], zero[e + 1]]) == 50728)
+        .expect("AsShotNeutral written");
+    let at = u32::from_le_bytes(zero[e + 8..e + 12].try_into().unwrap()) as usize;
+    zero[at..at + 4].fill(0);
+    let e = read::decode(&zero).expect_err("zero neutral");
+    assert!(
+        e.starts_with("AsShotNeutral = [0.0, ") && e.contains("three positive values"),
         "{e}"
     );
     // Not a DNG at all, a TIFF without DNGVersion, and a truncated file.

@@ -31,28 +31,24 @@ pub struct DngInfo {
 
 /// The DNG of `frame`. The black level is the frame's, the white level the largest code of
 /// its depth; ColorMatrix1 is the one matching its development matrix ([`color_matrix`]), and
-/// AsShotNeutral the frame's grey-world white balance, so a raw tool balances as focusd does.
+/// AsShotNeutral the frame's white balance (grey-world measured on it where it has none), so a
+/// raw tool balances as focusd does.
 pub fn encode(frame: &RawFrame, info: &DngInfo) -> Result<Vec<u8>, FileError> {
     let bad = |reason: String| FileError::Unsupported {
         path: format!("DNG of {}", info.model),
         reason,
     };
-    let mosaic = frame.mosaic().map_err(bad)?;
-    let samples = crate::develop::raw::unpack(
-        frame.packing,
-        frame.width,
-        frame.height,
-        frame.stride,
-        &frame.bytes,
-    )
-    .map_err(bad)?;
+    let samples = frame.samples().map_err(bad)?;
     let cm = color_matrix(frame.matrix).ok_or_else(|| {
         bad(format!(
             "colour matrix {:?} is singular: no DNG ColorMatrix1 maps to it",
             frame.matrix
         ))
     })?;
-    let gains = grey_world(&[&mosaic]);
+    let gains = match frame.white_balance {
+        Some(gains) => gains,
+        None => grey_world(&[&frame.mosaic().map_err(bad)?]),
+    };
     let (w, h) = (frame.width as u32, frame.height as u32);
     let bits = frame.bits();
 
