@@ -38,6 +38,7 @@
 use super::{BayerOrder, Mosaic};
 use crate::stack::image::Image;
 use crate::stack::srgb;
+use crate::stack::Rect;
 use rayon::prelude::*;
 use std::sync::{Mutex, PoisonError};
 
@@ -138,19 +139,22 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
     in_strips(m, STRIP_ROWS)
 }
 
-/// A rectangle of a frame: x, y, width, height.
-type Region = (usize, usize, usize, usize);
-
 /// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them:
 /// each is developed with the mosaic around it as far as an output pixel's value reaches
 /// (`PAD`), rectangles close together in one window ([`windows`]), the windows in parallel.
-pub fn demosaic_regions(m: &Mosaic, rects: &[Region]) -> Vec<Image<f32>> {
+pub fn demosaic_regions(m: &Mosaic, rects: &[Rect]) -> Vec<Image<f32>> {
     let srgb::Tabulated { encode, decode } = srgb::tabulated();
     let p = Padded::new(m, |v| encode.at(v));
     let spare = Mutex::new(Vec::<Workspace>::new());
     let pieces: Vec<Vec<(usize, Image<f32>)>> = windows(rects, m.width)
         .par_iter()
-        .map(|&((x, y, width, height), ref members)| {
+        .map(|&(window, ref members)| {
+            let Rect {
+                x,
+                y,
+                width,
+                height,
+            } = window;
             assert!(
                 x + width <= m.width && y + height <= m.height,
                 "region outside the mosaic"
@@ -169,9 +173,9 @@ pub fn demosaic_regions(m: &Mosaic, rects: &[Region]) -> Vec<Image<f32>> {
             let cut = members
                 .iter()
                 .map(|&k| {
-                    let (rx, ry, rw, rh) = rects[k];
-                    let (dx, dy) = (rx - x0 + PAD, ry - y0 + PAD);
-                    let img = Image::from_fn(rw, rh, 3, |xx, yy, c| {
+                    let r = rects[k];
+                    let (dx, dy) = (r.x - x0 + PAD, r.y - y0 + PAD);
+                    let img = Image::from_fn(r.width, r.height, 3, |xx, yy, c| {
                         decode.at(planes[c][(yy + dy) * ww + xx + dx])
                     });
                     (k, img)
@@ -197,15 +201,19 @@ pub fn demosaic_regions(m: &Mosaic, rects: &[Region]) -> Vec<Image<f32>> {
 /// both, with its halo of `PAD` on every side, costs no more than their two, and no more than a
 /// strip of a `width`-wide frame's whole development (so no more memory). Each window with the
 /// indices of the rectangles it holds.
-fn windows(rects: &[Region], width: usize) -> Vec<(Region, Vec<usize>)> {
-    let cost = |(_, _, w, h): Region| (w + 2 * PAD) * (h + 2 * PAD);
+fn windows(rects: &[Rect], width: usize) -> Vec<(Rect, Vec<usize>)> {
+    let cost = |r: Rect| (r.width + 2 * PAD) * (r.height + 2 * PAD);
     let cap = (width + 2 * PAD) * (STRIP_ROWS + 2 * PAD);
-    let union = |a: Region, b: Region| {
-        let (x, y) = (a.0.min(b.0), a.1.min(b.1));
-        let (r, bottom) = ((a.0 + a.2).max(b.0 + b.2), (a.1 + a.3).max(b.1 + b.3));
-        (x, y, r - x, bottom - y)
+    let union = |a: Rect, b: Rect| {
+        let (x, y) = (a.x.min(b.x), a.y.min(b.y));
+        Rect {
+            x,
+            y,
+            width: (a.x + a.width).max(b.x + b.width) - x,
+            height: (a.y + a.height).max(b.y + b.height) - y,
+        }
     };
-    let mut groups: Vec<(Region, Vec<usize>)> = rects
+    let mut groups: Vec<(Rect, Vec<usize>)> = rects
         .iter()
         .enumerate()
         .map(|(k, &r)| (r, vec![k]))
@@ -797,13 +805,24 @@ pub(super) mod tests {
             (3, 1, w - 5, 9),
             (99, 110, 64, 32),
             (120, 142, 9, 7),
-        ];
+        ]
+        .map(|(x, y, width, height)| Rect {
+            x,
+            y,
+            width,
+            height,
+        });
         let grouped = windows(&rects, w);
         assert!(grouped.len() < rects.len(), "{grouped:?}");
         let first = grouped.iter().find(|(_, k)| k.contains(&0)).expect("held");
         assert!(first.1.contains(&4) && first.1.contains(&5), "{grouped:?}");
         for (part, r) in demosaic_regions(&m, &rects).iter().zip(rects) {
-            let (x, y, rw, rh) = r;
+            let Rect {
+                x,
+                y,
+                width: rw,
+                height: rh,
+            } = r;
             assert_eq!((part.width(), part.height()), (rw, rh));
             for yy in 0..rh {
                 let got = &part.data()[yy * rw * 3..][..rw * 3];

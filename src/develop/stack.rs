@@ -36,6 +36,13 @@ impl RawStack {
     pub fn takes(&self) -> &[RawFrame] {
         &self.frames
     }
+
+    /// Frame `i`'s samples in linear light, white-balanced: what both developments start from.
+    fn balanced(&self, i: usize) -> Result<super::Mosaic, String> {
+        let mut m = self.frames[i].mosaic()?;
+        m.balance(self.developer.locked());
+        Ok(m)
+    }
 }
 
 /// Bytes developing one `width`×`height` raw frame takes while it runs: its samples in linear
@@ -52,21 +59,13 @@ impl Develop<u8> for RawStack {
     }
 
     fn cheap(&self, i: usize) -> Result<Image<u8>, String> {
-        let mut m = self.frames[i].mosaic()?;
-        m.balance(self.developer.locked());
-        let mut rgb = linear::cheap(&m);
+        let mut rgb = linear::cheap(&self.balanced(i)?);
         self.developer.to_srgb(&mut rgb, [1.0; 3]);
         Ok(encode(&rgb))
     }
 
     fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<u8>>, String> {
-        let mut m = self.frames[i].mosaic()?;
-        m.balance(self.developer.locked());
-        let at: Vec<_> = rects
-            .iter()
-            .map(|r| (r.x, r.y, r.width, r.height))
-            .collect();
-        Ok(demosaic_regions(&m, &at)
+        Ok(demosaic_regions(&self.balanced(i)?, rects)
             .into_iter()
             .map(|mut rgb| {
                 self.developer.to_srgb(&mut rgb, [1.0; 3]);
