@@ -33,6 +33,7 @@ use crate::stack::image::Plane;
 use crate::stack::pyramid::{expand, reduce};
 use crate::stack::transform::{Affine, OffsetField};
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 /// High-pass: each pyramid level minus its Gaussian blur of this σ (level pixels): keeps the
 /// texture that locates a shift, drops exposure offsets and the low frequencies defocus changes.
@@ -191,11 +192,11 @@ fn high_pass(p: &Plane) -> Plane {
 
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
 /// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`], what [`trust`]
-/// compares against. Made once per frame: a frame is the far side of one pair of the chain and
-/// the near side of the next.
+/// compares against, made the first time a pair needs it. Made once per frame: a frame is the
+/// far side of one pair of the chain and the near side of the next.
 struct Pyramid {
     levels: Vec<Plane>,
-    ladder: Vec<Plane>,
+    ladder: OnceLock<Vec<Plane>>,
 }
 
 impl Pyramid {
@@ -210,11 +211,20 @@ impl Pyramid {
             levels.push(reduced);
         }
         let levels: Vec<Plane> = levels.iter().map(high_pass).collect();
-        let ladder = DEFOCUS
-            .par_iter()
-            .map(|&s| blur_nan(&levels[0], s))
-            .collect();
-        Pyramid { levels, ladder }
+        Pyramid {
+            levels,
+            ladder: OnceLock::new(),
+        }
+    }
+
+    /// The working level blurred by each rung of [`DEFOCUS`].
+    fn ladder(&self) -> &[Plane] {
+        self.ladder.get_or_init(|| {
+            DEFOCUS
+                .par_iter()
+                .map(|&s| blur_nan(&self.levels[0], s))
+                .collect()
+        })
     }
 }
 
@@ -295,7 +305,7 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
             }
         }
     }
-    let sure = trust((&pa[0], &a.ladder), (&pb[0], &b.ladder), &mut f);
+    let sure = trust(a, b, &mut f);
     (f, sure)
 }
 
@@ -308,7 +318,8 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
 /// as they are that flow wins, against the sharper frame blurred as the other is it does not.
 /// Blurring the blurrier frame is no model of defocus and would also explain parallax away.
 /// Each frame comes with its ladder, as [`Pyramid`] holds it.
-fn trust((a, la): (&Plane, &[Plane]), (b, lb): (&Plane, &[Plane]), f: &mut Flow) -> Vec<f32> {
+fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
+    let (a, b) = (&pa.levels[0], &pb.levels[0]);
     let (w, h) = (a.width(), a.height());
     let sq = |a: &Plane, b: &Plane, moved: bool| {
         let data: Vec<f32> = (0..w * h)
@@ -338,41 +349,53 @@ fn trust((a, la): (&Plane, &[Plane]), (b, lb): (&Plane, &[Plane]), f: &mut Flow)
             .map(|v| if v.is_nan() { 0.0 } else { v * v });
         pool(&Plane::from_vec(w, h, 1, data.collect())).into_data()
     };
-    let (ea, eb) = rayon::join(|| energy(a), || energy(b));
     // The frames as they are through the flow, against the least residual without it of the
     // frames as they are and of the locally sharper one blurred by a rung of the ladder.
     let (plain, moved) = rayon::join(|| sq(a, b, false), || sq(a, b, true));
-    let ladder = la
-        .par_iter()
-        .zip(lb)
-        .map(|(blurred_a, blurred_b)| {
-            let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
-            (0..w * h)
-                .map(|i| if ea[i] >= eb[i] { ra[i] } else { rb[i] })
-                .collect::<Vec<f32>>()
-        })
-        .reduce(
-            || plain.clone(),
-            |x, y| x.iter().zip(&y).map(|(p, q)| p.min(*q)).collect(),
-        );
     // Share of the residual the flow removes, mapped to a weight 0..1.
     let weight = |e0: f32, e1: f32| {
         let removed = if e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
         ((removed - EXPLAINED) / EXPLAINED).clamp(0.0, 1.0)
     };
-    f.dx.par_iter_mut()
-        .zip(f.dy.par_iter_mut())
-        .zip(plain.par_iter().zip(&moved))
-        .for_each(|((dx, dy), (e0, e1))| {
-            let k = weight(*e0, *e1);
-            *dx *= k;
-            *dy *= k;
-        });
-    ladder
+    let kept: Vec<f32> = plain
         .par_iter()
         .zip(&moved)
         .map(|(e0, e1)| weight(*e0, *e1))
-        .collect()
+        .collect();
+    // The ladder's least residual is at most the plain one, so where the flow is kept nowhere
+    // it is surely moved nowhere: the ladder is not needed (NaN weights do not count as 0).
+    let sure = if kept.iter().all(|&k| k == 0.0) {
+        vec![0.0; w * h]
+    } else {
+        let (ea, eb) = rayon::join(|| energy(a), || energy(b));
+        let ladder = pa
+            .ladder()
+            .par_iter()
+            .zip(pb.ladder())
+            .map(|(blurred_a, blurred_b)| {
+                let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
+                (0..w * h)
+                    .map(|i| if ea[i] >= eb[i] { ra[i] } else { rb[i] })
+                    .collect::<Vec<f32>>()
+            })
+            .reduce(
+                || plain.clone(),
+                |x, y| x.iter().zip(&y).map(|(p, q)| p.min(*q)).collect(),
+            );
+        ladder
+            .par_iter()
+            .zip(&moved)
+            .map(|(e0, e1)| weight(*e0, *e1))
+            .collect()
+    };
+    f.dx.par_iter_mut()
+        .zip(f.dy.par_iter_mut())
+        .zip(&kept)
+        .for_each(|((dx, dy), k)| {
+            *dx *= k;
+            *dy *= k;
+        });
+    sure
 }
 
 /// Gaussian blur with NaN (outside the frame) kept out of it and kept NaN.
