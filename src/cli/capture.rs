@@ -6,7 +6,7 @@ use super::progress::Bar;
 use anyhow::{Context, Result};
 use focusd::backend::replay::BundleWriter;
 use focusd::capture::record::{take_dng, Recording};
-use focusd::capture::sweep::{sweep, PlaneReport, Unmonitored};
+use focusd::capture::sweep::{sweep_takes, PlaneReport, Unmonitored};
 use focusd::capture::Frame;
 use focusd::files::imageio as io;
 use focusd::files::orientation::Orientation;
@@ -137,7 +137,8 @@ pub fn record(a: &RecordArgs) -> Result<()> {
     let (_, mut rig) = a.source.open()?;
     let begin = rig.clock.now();
     let mut recording = Recording::new(rig.camera.as_mut());
-    let swept = sweep(
+    // The takes are written as they came: nothing here is developed.
+    let swept = sweep_takes(
         &mut recording,
         rig.imu.as_mut(),
         rig.clock.as_ref(),
@@ -181,7 +182,7 @@ pub fn record(a: &RecordArgs) -> Result<()> {
         imu.len(),
         a.output.display()
     );
-    let swept = swept?;
+    let (_, swept) = swept?;
     print_planes(&swept.planes);
     Ok(())
 }
