@@ -7,7 +7,7 @@ use super::demosaic::demosaic_regions;
 use super::{encode, encode8, grey_world, linear, Developer, Mosaic, RawFrame};
 use crate::stack::image::Image;
 use crate::stack::srgb;
-use crate::stack::{Develop, Rect};
+use crate::stack::{Develop, Piece, Rect};
 
 pub struct RawStack {
     frames: Vec<RawFrame>,
@@ -83,10 +83,10 @@ impl RawStack {
     }
 }
 
-/// Bytes developing one `width`×`height` raw frame takes while it runs: its samples in linear
-/// light and encoded with the demosaic's border (4 bytes each), and the cheap development in
-/// linear light (12 bytes a pixel) or the full one's rectangles and their working planes,
-/// whichever is more.
+/// Bytes developing one `width`×`height` raw frame takes while it runs, whichever way is more:
+/// cheaply, its samples unpacked (2 bytes each) and a few rows of them encoded; in full, the
+/// samples, in linear light and encoded with the demosaic's border (4 bytes each), and the
+/// regions' windows with their working planes, up to a strip of the frame's.
 pub fn working_bytes(width: usize, height: usize) -> usize {
     24 * width * height
 }
@@ -108,14 +108,30 @@ impl Develop<u8> for RawStack {
         Ok(pieces.pop().expect("one rectangle asked for"))
     }
 
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<u8>>, String> {
-        let mut m = self.frames[i].mosaic()?;
+    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
+        let f = &self.frames[i];
+        let samples = f.samples()?;
+        let mut m = Mosaic::from_samples(
+            &samples,
+            f.width,
+            f.height,
+            f.order,
+            f.bits(),
+            f.black_level,
+        );
         m.balance(self.developer.locked());
-        Ok(demosaic_regions(&m, rects)
+        let full = demosaic_regions(&m, rects);
+        drop(m);
+        let cheap = self.cheap_over(i, &samples, rects);
+        Ok(full
             .into_iter()
-            .map(|mut rgb| {
+            .zip(cheap)
+            .map(|(mut rgb, cheap)| {
                 self.developer.to_srgb(&mut rgb, [1.0; 3]);
-                encode(&rgb)
+                Piece {
+                    full: encode(&rgb),
+                    cheap,
+                }
             })
             .collect())
     }
