@@ -1,25 +1,21 @@
 //! Linear demosaics: Malvar, He and Cutler's gradient-corrected filters and bilinear
 //! interpolation. Far cheaper than the residual interpolation of [`super::demosaic`] and a few
-//! dB worse, but at full size: Malvar–He–Cutler on encoded samples ([`cheap`]) is the cheap
-//! development a stack is registered and labelled on, fine detail and all; both are the
+//! dB worse, but at full size: Malvar–He–Cutler on encoded samples ([`malvar_over`]) is the
+//! cheap development a stack is registered and labelled on, fine detail and all; both are the
 //! baselines the demosaic's tests compare with.
 
 use super::demosaic::Padded;
-use super::Mosaic;
+use super::{BayerOrder, Mosaic};
+#[cfg(test)]
 use crate::stack::image::Image;
-use crate::stack::srgb;
+use crate::stack::Rect;
 use rayon::prelude::*;
 
-/// The cheap full-size development: [`malvar`] on the mosaic's encoded samples, as the full
-/// demosaic works, decoded back to linear light.
-pub fn cheap(m: &Mosaic) -> Image<f32> {
-    encoded(m, malvar)
-}
-
 /// `filter` run on the mosaic's sRGB-encoded samples, its output decoded to linear light:
-/// what [`super::demosaic::demosaic`] does.
+/// what [`super::demosaic::demosaic`] does, and the cheap development's steps one by one.
+#[cfg(test)]
 pub fn encoded(m: &Mosaic, filter: fn(&Mosaic) -> Image<f32>) -> Image<f32> {
-    let srgb::Tabulated { encode, decode } = srgb::tabulated();
+    let crate::stack::srgb::Tabulated { encode, decode } = crate::stack::srgb::tabulated();
     let encoded = Mosaic {
         data: m.data.iter().map(|&v| encode.at(v)).collect(),
         ..m.clone()
@@ -30,7 +26,6 @@ pub fn encoded(m: &Mosaic, filter: fn(&Mosaic) -> Image<f32>) -> Image<f32> {
     }
     rgb
 }
-
 /// Bilinear interpolation: each missing colour the mean of its samples among the 3×3
 /// neighbours, what focusd did first and the baseline the quality tests compare with.
 #[cfg(test)]
@@ -67,45 +62,164 @@ pub fn bilinear(m: &Mosaic) -> Image<f32> {
 
 /// Malvar, He and Cutler's gradient-corrected linear interpolation ("High-quality linear
 /// interpolation for demosaicing of Bayer-patterned color images", ICASSP 2004), what
-/// focusd used before residual interpolation: the bilinear estimate of a missing colour
-/// plus a fraction of the Laplacian of the colour the pixel has. In the mosaic's own
-/// encoding.
+/// focusd used before residual interpolation, over a whole mosaic in its own encoding: the
+/// baseline the demosaic's tests compare with ([`malvar_over`] does the work).
+#[cfg(test)]
 pub fn malvar(m: &Mosaic) -> Image<f32> {
-    let p = Padded::new(m, |v| v);
     let mut out = vec![0.0f32; m.width * m.height * 3];
-    if m.width == 0 {
-        return Image::from_vec(m.width, m.height, 3, out);
+    let whole = Rect {
+        x: 0,
+        y: 0,
+        width: m.width,
+        height: m.height,
+    };
+    let fill = |y: usize, x0: usize, row: &mut [f32]| {
+        row.copy_from_slice(&m.data[y * m.width + x0..][..row.len()]);
+    };
+    let pixel = |rgb: [f32; 3], out: &mut [f32]| out.copy_from_slice(&rgb);
+    malvar_over((m.width, m.height), m.order, whole, &fill, &pixel, &mut out);
+    Image::from_vec(m.width, m.height, 3, out)
+}
+
+/// Samples of mirrored border Malvar–He–Cutler's filters reach on each side.
+const BORDER: usize = 2;
+
+/// Output rows a task of [`malvar_over`] makes: the rows it reads are a fifth more.
+const TASK_ROWS: usize = 16;
+
+/// For a line of `n` samples, the sample an index `i` up to [`BORDER`] beyond either end stands
+/// for: the demosaic's own mirrored border (about the first and the last sample, which keeps the
+/// pattern's colours), read off a line of indices padded as it pads a mosaic.
+fn mirror(n: usize) -> impl Fn(isize) -> usize {
+    let line = Mosaic {
+        width: n,
+        height: 1,
+        order: BayerOrder::Rggb,
+        data: (0..n).map(|i| i as f32).collect(),
+    };
+    let p = Padded::new(&line, |v| v);
+    move |i| {
+        let x = i.clamp(0, n as isize - 1);
+        p.at(x as usize, 0, i - x, 0) as usize
     }
-    out.par_chunks_mut(m.width * 3)
+}
+
+/// Malvar–He–Cutler (see [`malvar`]) over the `rect` of a `width`×`height` mosaic of Bayer
+/// `order`, row by row in parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from
+/// column `x0` on, as many as `row` holds (all inside the mosaic; the border is mirrored here),
+/// and `pixel` writes an output pixel's three values to its `C` samples in `out` (the `rect`'s
+/// pixels row by row). What the samples are (encoded, balanced) is up to `fill`, so that the
+/// cheap development reads a frame's integer samples through a table with no frame-sized
+/// float copy.
+pub fn malvar_over<T: Send>(
+    (width, height): (usize, usize),
+    order: BayerOrder,
+    rect: Rect,
+    fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
+    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
+    out: &mut [T],
+) {
+    const C: usize = 3;
+    let ww = rect.width + 2 * BORDER;
+    if rect.width == 0 || rect.height == 0 {
+        return;
+    }
+    let (across, down) = (mirror(width), mirror(height));
+    // The columns of a window row inside the mosaic, as positions in the row.
+    let inside = BORDER.saturating_sub(rect.x)..(width + BORDER - rect.x).min(ww);
+    let column = |k: usize| rect.x as isize + k as isize - BORDER as isize;
+    out.par_chunks_mut(rect.width * C * TASK_ROWS)
         .enumerate()
-        .for_each(|(y, row)| {
-            for (x, px) in row.chunks_exact_mut(3).enumerate() {
-                let s = |dx: isize, dy: isize| p.at(x, y, dx, dy);
-                let c = s(0, 0);
-                // The filters of the paper's figure 2, each times 8.
-                let cross = s(-1, 0) + s(1, 0) + s(0, -1) + s(0, 1);
-                let far = s(-2, 0) + s(2, 0) + s(0, -2) + s(0, 2);
-                let diag = s(-1, -1) + s(1, -1) + s(-1, 1) + s(1, 1);
-                let far_h = s(-2, 0) + s(2, 0);
-                let far_v = s(0, -2) + s(0, 2);
-                // Green at a red or blue sample.
-                let g_at_rb = (4.0 * c + 2.0 * cross - far) / 8.0;
-                // Red (blue) at a green sample whose row holds red (blue): from left and right.
-                let from_row =
-                    (5.0 * c + 4.0 * (s(-1, 0) + s(1, 0)) - diag - far_h + 0.5 * far_v) / 8.0;
-                // ... whose column holds it: from above and below.
-                let from_col =
-                    (5.0 * c + 4.0 * (s(0, -1) + s(0, 1)) - diag - far_v + 0.5 * far_h) / 8.0;
-                // Red at blue, blue at red: from the diagonals.
-                let from_diag = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
-                let rgb = match m.order.channel(x, y) {
-                    0 => [c, g_at_rb, from_diag],
-                    2 => [from_diag, g_at_rb, c],
-                    _ if m.order.channel(x + 1, y) == 0 => [from_row, c, from_col],
-                    _ => [from_col, c, from_row],
-                };
-                px.copy_from_slice(&rgb);
+        .for_each_init(Vec::new, |window, (task, chunk)| {
+            let y0 = rect.y + task * TASK_ROWS;
+            let rows = chunk.len() / (rect.width * C);
+            window.resize((rows + 2 * BORDER) * ww, 0.0);
+            for (j, line) in window.chunks_exact_mut(ww).enumerate() {
+                let y = down(y0 as isize + j as isize - BORDER as isize);
+                fill(y, column(inside.start) as usize, &mut line[inside.clone()]);
+                for k in (0..inside.start).chain(inside.end..ww) {
+                    fill(y, across(column(k)), &mut line[k..k + 1]);
+                }
+            }
+            for (yy, row) in chunk.chunks_exact_mut(rect.width * C).enumerate() {
+                let y = y0 + yy;
+                for (xx, px) in row.chunks_exact_mut(C).enumerate() {
+                    let s = |dx: isize, dy: isize| {
+                        let r = (yy + BORDER) as isize + dy;
+                        window[(r as usize) * ww + (xx as isize + BORDER as isize + dx) as usize]
+                    };
+                    let x = rect.x + xx;
+                    let c = s(0, 0);
+                    // The filters of the paper's figure 2, each times 8.
+                    let cross = s(-1, 0) + s(1, 0) + s(0, -1) + s(0, 1);
+                    let far = s(-2, 0) + s(2, 0) + s(0, -2) + s(0, 2);
+                    let diag = s(-1, -1) + s(1, -1) + s(-1, 1) + s(1, 1);
+                    let far_h = s(-2, 0) + s(2, 0);
+                    let far_v = s(0, -2) + s(0, 2);
+                    // Green at a red or blue sample.
+                    let g_at_rb = (4.0 * c + 2.0 * cross - far) / 8.0;
+                    // Red (blue) at a green sample whose row holds red (blue): from left and
+                    // right.
+                    let from_row =
+                        (5.0 * c + 4.0 * (s(-1, 0) + s(1, 0)) - diag - far_h + 0.5 * far_v) / 8.0;
+                    // ... whose column holds it: from above and below.
+                    let from_col =
+                        (5.0 * c + 4.0 * (s(0, -1) + s(0, 1)) - diag - far_v + 0.5 * far_h) / 8.0;
+                    // Red at blue, blue at red: from the diagonals.
+                    let from_diag = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
+                    let rgb = match order.channel(x, y) {
+                        0 => [c, g_at_rb, from_diag],
+                        2 => [from_diag, g_at_rb, c],
+                        _ if order.channel(x + 1, y) == 0 => [from_row, c, from_col],
+                        _ => [from_col, c, from_row],
+                    };
+                    pixel(rgb, px);
+                }
             }
         });
-    Image::from_vec(m.width, m.height, 3, out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rectangle_is_the_whole_frames_development_cut() {
+        // Odd sizes, rectangles at every edge and inside, narrower than the border.
+        let (w, h) = (37, 29);
+        let m = Mosaic {
+            width: w,
+            height: h,
+            order: BayerOrder::Gbrg,
+            data: (0..w * h)
+                .map(|i| ((i * 7919) % 1000) as f32 / 999.0)
+                .collect(),
+        };
+        let whole = malvar(&m);
+        let fill = |y: usize, x0: usize, row: &mut [f32]| {
+            row.copy_from_slice(&m.data[y * w + x0..][..row.len()]);
+        };
+        let pixel = |rgb: [f32; 3], out: &mut [f32]| out.copy_from_slice(&rgb);
+        for (x, y, width, height) in [(0, 0, 5, 3), (1, 1, 1, 1), (30, 20, 7, 9), (3, 10, 20, 17)] {
+            let r = Rect {
+                x,
+                y,
+                width,
+                height,
+            };
+            let mut out = vec![0.0; width * height * 3];
+            malvar_over((w, h), m.order, r, &fill, &pixel, &mut out);
+            for yy in 0..height {
+                for xx in 0..width {
+                    for c in 0..3 {
+                        assert_eq!(
+                            out[(yy * width + xx) * 3 + c],
+                            whole.at(x + xx, y + yy, c),
+                            "{r:?} at ({xx}, {yy})"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

@@ -61,18 +61,22 @@ impl Mosaic {
         bits: u32,
         black: u32,
     ) -> Mosaic {
-        let white = ((1u32 << bits) - 1) as f32;
-        let black = black as f32;
-        let scale = 1.0 / (white - black).max(1.0);
+        let linear = Mosaic::linear(bits, black);
         Mosaic {
             width,
             height,
             order,
-            data: samples
-                .iter()
-                .map(|&v| (f32::from(v) - black) * scale)
-                .collect(),
+            data: samples.iter().map(|&v| linear(v)).collect(),
         }
+    }
+
+    /// A sample of `bits` bits in linear light, black level `black` off, as
+    /// [`Mosaic::from_samples`] takes it.
+    pub fn linear(bits: u32, black: u32) -> impl Fn(u16) -> f32 {
+        let white = ((1u32 << bits) - 1) as f32;
+        let black = black as f32;
+        let scale = 1.0 / (white - black).max(1.0);
+        move |v| (f32::from(v) - black) * scale
     }
 
     /// The mosaic a sensor with this pattern would record of linear RGB `rgb` (three channels):
@@ -147,17 +151,22 @@ pub fn decode(img: &Image<u8>) -> Image<f32> {
 
 /// Linear RGB to 8-bit sRGB.
 pub fn encode(rgb: &Image<f32>) -> Image<u8> {
-    // A table over 12 bits of linear light: the curve's libm `powf` per sample would dominate.
-    const STEPS: usize = 4096;
-    let table: Vec<u8> = (0..=STEPS)
-        .map(|i| (srgb_encode(i as f32 / STEPS as f32) * 255.0 + 0.5) as u8)
-        .collect();
-    let data = rgb
-        .data()
-        .iter()
-        .map(|&v| table[(v.clamp(0.0, 1.0) * STEPS as f32 + 0.5) as usize])
-        .collect();
+    let data = rgb.data().iter().map(|&v| encode8(v)).collect();
     Image::from_vec(rgb.width(), rgb.height(), rgb.channels(), data)
+}
+
+/// A linear value as 8-bit sRGB, through a table over 12 bits of linear light made once: the
+/// curve's libm `powf` per sample would dominate.
+#[inline]
+pub fn encode8(v: f32) -> u8 {
+    const STEPS: usize = 4096;
+    static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    let table = TABLE.get_or_init(|| {
+        (0..=STEPS)
+            .map(|i| (srgb_encode(i as f32 / STEPS as f32) * 255.0 + 0.5) as u8)
+            .collect()
+    });
+    table[(v.clamp(0.0, 1.0) * STEPS as f32 + 0.5) as usize]
 }
 
 /// How one camera's raw frames are developed, with its white balance once measured.
@@ -212,13 +221,17 @@ impl Developer {
 
     /// Camera RGB, each channel times its `gains`, through the colour matrix, in place.
     fn to_srgb(&self, rgb: &mut Image<f32>, gains: [f32; 3]) {
-        let k = self.matrix;
         for px in rgb.data_mut().chunks_exact_mut(3) {
-            let v = [px[0] * gains[0], px[1] * gains[1], px[2] * gains[2]];
-            for (out, row) in px.iter_mut().zip(k) {
-                *out = row[0] * v[0] + row[1] * v[1] + row[2] * v[2];
-            }
+            let v = self.srgb([px[0] * gains[0], px[1] * gains[1], px[2] * gains[2]]);
+            px.copy_from_slice(&v);
         }
+    }
+
+    /// One pixel of balanced camera RGB through the colour matrix.
+    #[inline]
+    fn srgb(&self, v: [f32; 3]) -> [f32; 3] {
+        self.matrix
+            .map(|row| row[0] * v[0] + row[1] * v[1] + row[2] * v[2])
     }
 
     /// 8-bit sRGB from a mosaic.

@@ -276,12 +276,127 @@ pub fn warp_frame_into<T: Sample>(
         out.same_geometry(reference),
         "output is not the reference's geometry"
     );
+    let fallback = Some(reference.data());
+    warp_source(Source::Frame(frame), fallback, warp, exposure, out, scratch)
+}
+
+/// A difference between two images of parts of a frame: over `.0`, `.1` − `.2` (each `.0`'s
+/// size), zero elsewhere.
+pub type Patch<'a, T> = (Rect, &'a Image<T>, &'a Image<T>);
+
+/// Adds to `out` (the reference's geometry) the warp of a `width`×`height` frame that is zero
+/// but over `patches`, each channel divided by its exposure's gain: what warping two versions
+/// of a frame that differ only there and subtracting would add, but for rounding, as the warp
+/// is linear and an exposure's offset cancels. Only the output rows whose taps reach a patch
+/// are resampled; pixels the frame does not cover are left as they are.
+pub fn warp_add_into<T: Sample>(
+    patches: &[Patch<T>],
+    (width, height): (usize, usize),
+    warp: &Warp,
+    exposure: &[Exposure],
+    out: &mut Image<T>,
+    scratch: &mut Vec<f32>,
+) {
+    let gains: Vec<Exposure> = exposure
+        .iter()
+        .map(|e| Exposure {
+            gain: e.gain,
+            offset: 0.0,
+        })
+        .collect();
+    let source = Source::Patches {
+        size: (width, height),
+        patches,
+    };
+    warp_source(source, None, warp, &gains, out, scratch);
+}
+
+/// What a warp resamples.
+#[derive(Clone, Copy)]
+enum Source<'a, T> {
+    Frame(&'a Image<T>),
+    /// A frame of this size, zero but over the patches ([`warp_add_into`]).
+    Patches {
+        size: (usize, usize),
+        patches: &'a [Patch<'a, T>],
+    },
+}
+
+impl<T: Sample> Source<'_, T> {
+    fn size(&self) -> (usize, usize) {
+        match self {
+            Source::Frame(f) => (f.width(), f.height()),
+            Source::Patches { size, .. } => *size,
+        }
+    }
+
+    /// Whether any of frame rows `rows` may be other than zero.
+    fn reaches(&self, rows: std::ops::Range<usize>) -> bool {
+        match self {
+            Source::Frame(_) => true,
+            Source::Patches { patches, .. } => patches
+                .iter()
+                .any(|(r, ..)| r.y < rows.end && r.y + r.height > rows.start),
+        }
+    }
+
+    /// Frame rows `first..` as floats into `dst`, `L` lanes a pixel, `C` channels and unused
+    /// lanes zero.
+    fn rows_into<const C: usize, const L: usize>(&self, first: usize, dst: &mut [f32]) {
+        let fw = self.size().0;
+        match self {
+            Source::Frame(frame) => {
+                let end = first + dst.len() / (fw * L);
+                dst.par_chunks_mut(L << 14)
+                    .zip(frame.data()[first * fw * C..end * fw * C].par_chunks(C << 14))
+                    .for_each(|(d, s)| {
+                        for (d, s) in d.chunks_exact_mut(L).zip(s.chunks_exact(C)) {
+                            let (d, pad) = d.split_at_mut(C);
+                            d.iter_mut().zip(s).for_each(|(d, s)| *d = s.to_f32());
+                            pad.fill(0.0);
+                        }
+                    });
+            }
+            Source::Patches { patches, .. } => {
+                dst.fill(0.0);
+                let end = first + dst.len() / (fw * L);
+                for (r, a, b) in patches.iter() {
+                    for y in r.y.max(first)..(r.y + r.height).min(end) {
+                        let at = ((y - first) * fw + r.x) * L;
+                        let row = (y - r.y) * r.width * C..(y - r.y + 1) * r.width * C;
+                        let (a, b) = (&a.data()[row.clone()], &b.data()[row]);
+                        let pixels = a.chunks_exact(C).zip(b.chunks_exact(C));
+                        for (d, (a, b)) in dst[at..at + r.width * L].chunks_exact_mut(L).zip(pixels)
+                        {
+                            for ((d, a), b) in d.iter_mut().zip(a).zip(b) {
+                                *d = a.to_f32() - b.to_f32();
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Resamples `source` into `out` through `warp`, undoing `exposure`: where `fallback` (the
+/// reference's samples) is given, replacing `out`'s pixels and taking the fallback's where the
+/// frame does not cover them; where it is not, adding to them.
+fn warp_source<T: Sample>(
+    source: Source<T>,
+    fallback: Option<&[T]>,
+    warp: &Warp,
+    exposure: &[Exposure],
+    out: &mut Image<T>,
+    scratch: &mut Vec<f32>,
+) -> Coverage {
     const GREY: usize = warp_lanes(1);
     const COLOUR: usize = warp_lanes(3);
+    let (w, ch) = (out.width(), out.channels());
     let data = out.data_mut();
-    match reference.channels() {
-        1 => warp_channels::<T, 1, GREY>(frame, reference, warp, exposure, data, scratch),
-        3 => warp_channels::<T, 3, COLOUR>(frame, reference, warp, exposure, data, scratch),
+    match ch {
+        1 => warp_channels::<T, 1, GREY>(source, fallback, w, warp, exposure, data, scratch),
+        3 => warp_channels::<T, 3, COLOUR>(source, fallback, w, warp, exposure, data, scratch),
         n => panic!("frames have 1 or 3 channels, not {n}"),
     }
 }
@@ -301,15 +416,15 @@ pub const fn warp_lanes(channels: usize) -> usize {
 /// every tap one vector multiply-add instead of three scalar ones, each lane summing in the same
 /// order as the scalar loop did, so the output is the same, for a third more scratch memory.
 fn warp_channels<T: Sample, const C: usize, const L: usize>(
-    frame: &Image<T>,
-    reference: &Image<T>,
+    source: Source<T>,
+    fallback: Option<&[T]>,
+    w: usize,
     warp: &Warp,
     exposure: &[Exposure],
     data: &mut [T],
     src: &mut Vec<f32>,
 ) -> Coverage {
-    let w = reference.width();
-    let (fw, fh) = (frame.width(), frame.height());
+    let (fw, fh) = source.size();
     let scale = T::MAX;
     // v' = (v − offset·MAX) / gain as one multiply-add.
     let correct: [(f32, f32); C] = std::array::from_fn(|c| {
@@ -325,7 +440,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
     let reach = warp.field.as_ref().map_or(0.0, |f| f.reach(1.0));
     let band = band_rows(w as f64 * warp.affine.0[1][0].abs() + 2.0 * reach);
     let (table, raster) = (keys_table(), warp.raster(w));
-    let h = reference.height();
+    let h = data.len() / (w * C);
     let mut spans = Vec::with_capacity(h);
     for y0 in (0..h).step_by(band) {
         let y1 = (y0 + band).min(h);
@@ -335,20 +450,16 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
         // side for rounding.
         let first = (lo.floor() - 2.0).clamp(0.0, fh as f64) as usize;
         let end = ((hi.floor() + 5.0).clamp(0.0, fh as f64) as usize).max(first);
+        if fallback.is_none() && !source.reaches(first..end) {
+            // Adding a warp of zeros changes nothing.
+            spans.extend((y0..y1).map(|_| (0, 0)));
+            continue;
+        }
         // Sized in one allocation, reused by every band and frame: a parallel collect would
         // build it from pieces allocated in the worker threads' malloc arenas, which keep the
         // memory after it is freed.
         src.resize((end - first) * fw * L, 0.0);
-        src[..(end - first) * fw * L]
-            .par_chunks_mut(L << 14)
-            .zip(frame.data()[first * fw * C..end * fw * C].par_chunks(C << 14))
-            .for_each(|(d, s)| {
-                for (d, s) in d.chunks_exact_mut(L).zip(s.chunks_exact(C)) {
-                    let (d, pad) = d.split_at_mut(C);
-                    d.iter_mut().zip(s).for_each(|(d, s)| *d = s.to_f32());
-                    pad.fill(0.0);
-                }
-            });
+        source.rows_into::<C, L>(first, &mut src[..(end - first) * fw * L]);
         let rows = Rows {
             src,
             first,
@@ -356,13 +467,17 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
             table: &table,
             raster: &raster,
             correct,
+            add: fallback.is_none(),
         };
         spans.par_extend(
             data[y0 * w * C..y1 * w * C]
                 .par_chunks_mut(w * C)
-                .zip(reference.data()[y0 * w * C..y1 * w * C].par_chunks(w * C))
                 .enumerate()
-                .map(|(k, (row, fallback))| rows.warp::<T, L>(y0 + k, row, fallback)),
+                .map(|(k, row)| {
+                    let y = y0 + k;
+                    let fallback = fallback.map_or(&[][..], |f| &f[y * w * C..][..w * C]);
+                    rows.warp::<T, L>(y, row, fallback)
+                }),
         );
     }
     Coverage { width: w, spans }
@@ -417,6 +532,8 @@ struct Rows<'a, const C: usize> {
     raster: &'a Raster<'a>,
     /// Per channel, the exposure correction as a multiply-add.
     correct: [(f32, f32); C],
+    /// Whether the warped values are added to the output's (no fallback) or replace them.
+    add: bool,
 }
 
 impl<const C: usize> Rows<'_, C> {
@@ -523,7 +640,9 @@ impl<const C: usize> Rows<'_, C> {
         let mut acc = [0.0f32; L];
         match taps {
             Taps::Outside => {
-                out.copy_from_slice(&fallback[x * C..][..C]);
+                if !self.add {
+                    out.copy_from_slice(&fallback[x * C..][..C]);
+                }
                 return None;
             }
             // Inside: the 4×4 taps are contiguous runs of rows, each summed along x and then
@@ -566,7 +685,8 @@ impl<const C: usize> Rows<'_, C> {
     #[inline(always)]
     fn store<T: Sample>(&self, acc: &[f32], out: &mut [T]) {
         for ((o, &(m, b)), s) in out.iter_mut().zip(&self.correct).zip(acc) {
-            *o = T::from_f32(s * m + b);
+            let v = s * m + b;
+            *o = T::from_f32(if self.add { o.to_f32() + v } else { v });
         }
     }
 
@@ -673,6 +793,90 @@ mod tests {
         assert_eq!((before[2], after[1]), (1.0, 1.0));
         assert_eq!([before[0], before[1], before[3]], [0.0; 3]);
         assert_eq!([after[0], after[2], after[3]], [0.0; 3]);
+    }
+
+    #[test]
+    fn a_warped_difference_added_is_the_difference_of_the_warps() {
+        // Two versions of a frame differing over two rectangles, warped through a roll and a
+        // field with a gain and an offset: adding the difference's warp to the second's warp
+        // gives the first's, and rows no rectangle reaches are not touched.
+        let (w, h) = (160, 400);
+        let b = Image::from_fn(w, h, 3, |x, y, c| {
+            ((x * 7 + y * 13 + c * 5) % 97) as f32 / 97.0
+        });
+        let rects = [
+            Rect {
+                x: 20,
+                y: 30,
+                width: 40,
+                height: 25,
+            },
+            Rect {
+                x: 100,
+                y: 150,
+                width: 60,
+                height: 20,
+            },
+        ];
+        let a = Image::from_fn(w, h, 3, |x, y, c| {
+            let inside =
+                |r: &Rect| (r.x..r.x + r.width).contains(&x) && (r.y..r.y + r.height).contains(&y);
+            let k = rects.iter().position(inside).map_or(0, |k| k + 1);
+            b.at(x, y, c) + 0.1 * k as f32 * ((x + c) % 3) as f32
+        });
+        let crop = |img: &Image<f32>, r: Rect| {
+            Image::from_fn(r.width, r.height, 3, |x, y, c| img.at(r.x + x, r.y + y, c))
+        };
+        let pieces: Vec<(Image<f32>, Image<f32>)> =
+            rects.iter().map(|&r| (crop(&a, r), crop(&b, r))).collect();
+        let patches: Vec<Patch<f32>> = rects
+            .iter()
+            .zip(&pieces)
+            .map(|(&r, (pa, pb))| (r, pa, pb))
+            .collect();
+        let field = OffsetField {
+            step: 40.0,
+            cols: 5,
+            rows: 11,
+            offsets: (0..55).map(|i| (0.05 * i as f32 - 1.0, 0.7)).collect(),
+        };
+        let warp = Warp {
+            affine: Affine::similarity(1.01, 0.03, (80.0, 200.0), (2.5, -1.25)),
+            field: Some(field),
+        };
+        let exposure = [
+            Exposure {
+                gain: 0.9,
+                offset: 0.02,
+            },
+            Exposure::SAME,
+            Exposure {
+                gain: 1.2,
+                offset: -0.01,
+            },
+        ];
+        let reference = Image::from_fn(w, h, 3, |_, _, _| 0.5f32);
+        let (want, _) = warp_frame(&a, &reference, &warp, &exposure);
+        let (mut got, _) = warp_frame(&b, &reference, &warp, &exposure);
+        let before = got.clone();
+        warp_add_into(
+            &patches,
+            (w, h),
+            &warp,
+            &exposure,
+            &mut got,
+            &mut Vec::new(),
+        );
+        let worst = got
+            .data()
+            .iter()
+            .zip(want.data())
+            .map(|(g, w)| (g - w).abs())
+            .fold(0.0f32, f32::max);
+        assert!(worst < 1e-5, "off by {worst}");
+        assert!(got != before, "nothing added");
+        let last = (340..h).all(|y| (0..w).all(|x| got.at(x, y, 1) == before.at(x, y, 1)));
+        assert!(last, "rows beyond every rectangle's reach changed");
     }
 
     #[test]
@@ -816,6 +1020,7 @@ mod tests {
             table: &table,
             raster: &raster,
             correct: [(0.9, 2.0), (1.0, 0.0), (1.1, -3.0)],
+            add: false,
         };
         let (mut one, mut pairs) = (vec![0u8; w * 3], vec![0u8; w * 3]);
         for y in 0..h {

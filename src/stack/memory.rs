@@ -180,11 +180,11 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
         }
         false => 0,
     };
-    // Developing lazily: one frame's development, the cheap and the full development of the
-    // frame being refined, both warped, and the reference they fall back on.
+    // Developing lazily: one frame's development, its regions developed both ways (at most the
+    // whole frame each), and the rows of their difference a band of the warp reads.
     let develop = match s.held {
         0 => 0,
-        _ => frames + s.developing + 5 * frame,
+        _ => frames + s.developing + 2 * frame + 4 * scratch * warp_lanes(s.channels),
     };
     let peak_of = |k: usize, label_rows: usize, rows: usize| {
         let stages = [
@@ -244,7 +244,7 @@ mod tests {
         let (a, b) = (plan(&developed, &p), plan(&raw, &p));
         assert!(b.peak >= a.peak + raw.held, "{} against {}", b.peak, a.peak);
         // Developing one frame while the others wait is a stage of its own.
-        let lazy = RUNTIME + 10 * px * 3 + raw.held + raw.developing + 5 * px * 3;
+        let lazy = RUNTIME + 10 * px * 3 + raw.held + raw.developing + 2 * px * 3;
         assert!(b.peak >= lazy, "{} below {lazy}", b.peak);
     }
 

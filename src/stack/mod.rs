@@ -37,7 +37,7 @@ pub use memory::{mib, plan as memory_plan, Plan as MemoryPlan, Stack as StackSha
 pub use metrics::{psnr, tenengrad};
 pub use order::{Order, OrderEvidence};
 pub use params::{middle_frame, FuseParams, Method, DEFAULT_BUDGET};
-pub use refine::{Develop, Developed};
+pub use refine::{Develop, Developed, Piece};
 pub use register::{Placement, RegisterError, RegisterParams, Registration};
 pub use repair::{Repaired, Settled};
 pub use spill::{Light, Pair, Unmixed};

@@ -5,7 +5,7 @@
 //! margins the blending and the warp reach. The stack says how it develops ([`Develop`]); the
 //! engine stays pixel work, whatever the frames are.
 
-use super::align::{warp_frame_into, Rect};
+use super::align::{warp_add_into, Patch, Rect};
 use super::fuse::{warp_of, Alignment};
 use super::image::{Image, Sample};
 use super::register::Placement;
@@ -17,12 +17,20 @@ pub trait Develop<T>: Sync {
     fn frames(&self) -> usize;
     /// Frame `i`, cheaply developed at its full size. The same image every time it is asked.
     fn cheap(&self, i: usize) -> Result<Image<T>, String>;
-    /// Frame `i` at full quality over each of `rects` (in the frame's own geometry).
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<T>>, String>;
+    /// Frame `i` over each of `rects` (in the frame's own geometry) at full quality, and
+    /// cheaply as [`Develop::cheap`] gives those pixels: what refining a frame takes, with no
+    /// second cheap development of the whole frame.
+    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<T>>, String>;
     /// Bytes the stack holds until the compose (its undeveloped frames).
     fn held_bytes(&self) -> usize;
     /// Bytes developing one frame takes while it runs, cheaply or in full.
     fn working_bytes(&self) -> usize;
+}
+
+/// A rectangle of a frame developed both ways.
+pub struct Piece<T> {
+    pub full: Image<T>,
+    pub cheap: Image<T>,
 }
 
 /// Output pixels around a frame's labels where its finest blending level may be taken from it
@@ -74,8 +82,9 @@ impl std::fmt::Display for Developed {
 /// Replaces the cheap development in `frames` (warped onto the reference as the fuse holds
 /// them, and spill-removed) by the full one wherever frame `i` is labelled `i` and the
 /// labelling found texture (`labels`, `textured`; `None`: everywhere), within [`MARGIN`].
-/// Whatever the fuse did to a frame after warping it (the spill removal) is kept: the full
-/// development is warped exactly as the cheap one was, and their difference added.
+/// Whatever the fuse did to a frame after warping it (the spill removal) is kept: the
+/// difference between the full and the cheap development, zero outside the regions, is warped
+/// as the frame was (its exposure's gain undone; the offset cancels) and added.
 pub(super) fn refine<T: Sample>(
     frames: &mut [Image<T>],
     labels: Option<(&[u8], &[bool])>,
@@ -86,8 +95,7 @@ pub(super) fn refine<T: Sample>(
 ) -> Result<Developed, (usize, String)> {
     let (w, h) = (frames[0].width(), frames[0].height());
     progress.stage(Stage::Develop, frames.len());
-    let fallback = frames[reference].clone();
-    let (mut out, mut scratch) = (fallback.clone(), Vec::new());
+    let mut scratch = Vec::new();
     let mut done = Developed {
         frame_pixels: w * h,
         ..Developed::default()
@@ -121,41 +129,35 @@ pub(super) fn refine<T: Sample>(
             progress.advance(1);
             continue;
         }
-        let cheap = stack.cheap(i).map_err(|e| (i, e))?;
-        let mut full = cheap.clone();
-        for (r, piece) in rects.iter().zip(stack.full(i, &rects).map_err(|e| (i, e))?) {
-            paste(&mut full, &piece, *r);
-            done.pixels += r.width * r.height;
-        }
+        let pieces = stack.full(i, &rects).map_err(|e| (i, e))?;
+        let patches: Vec<Patch<T>> = rects
+            .iter()
+            .zip(&pieces)
+            .map(|(&r, p)| (r, &p.full, &p.cheap))
+            .collect();
+        done.pixels += rects.iter().map(|r| r.width * r.height).sum::<usize>();
         done.rects += rects.len();
-        let ch = full.channels();
-        let add = |frame: &mut Image<T>, full: &Image<T>, cheap: &Image<T>| {
-            let pairs = full.data().iter().zip(cheap.data());
-            for (v, (f, c)) in frame.data_mut().iter_mut().zip(pairs) {
-                let d = f.to_f32() - c.to_f32();
-                if d != 0.0 {
-                    *v = T::from_f32(v.to_f32() + d);
-                }
-            }
-        };
         match &warp {
             Some((warp, exposure)) => {
-                // Both developments through the frame's warp: the full one into `out`, the
-                // cheap one into `full`'s buffer, now free.
-                warp_frame_into(&full, &fallback, warp, exposure, &mut out, &mut scratch);
-                let mut warped_cheap = full;
-                warped_cheap.resize(w, h, ch);
-                warp_frame_into(
-                    &cheap,
-                    &fallback,
-                    warp,
-                    exposure,
-                    &mut warped_cheap,
-                    &mut scratch,
-                );
-                add(frame, &out, &warped_cheap);
+                warp_add_into(&patches, (w, h), warp, exposure, frame, &mut scratch);
             }
-            None => add(frame, &full, &cheap),
+            None => {
+                let ch = frame.channels();
+                for (r, full, cheap) in patches {
+                    for y in 0..r.height {
+                        let row =
+                            &mut frame.data_mut()[((r.y + y) * w + r.x) * ch..][..r.width * ch];
+                        let at = y * r.width * ch..(y + 1) * r.width * ch;
+                        let pairs = full.data()[at.clone()].iter().zip(&cheap.data()[at]);
+                        for (v, (f, c)) in row.iter_mut().zip(pairs) {
+                            let d = f.to_f32() - c.to_f32();
+                            if d != 0.0 {
+                                *v = T::from_f32(v.to_f32() + d);
+                            }
+                        }
+                    }
+                }
+            }
         }
         progress.advance(1);
     }
@@ -234,14 +236,6 @@ fn regions(
     rects
 }
 
-/// Writes `piece` over the `r` of `img`.
-fn paste<T: Sample>(img: &mut Image<T>, piece: &Image<T>, r: Rect) {
-    let (w, ch) = (img.width(), img.channels());
-    for (y, row) in piece.data().chunks_exact(r.width * ch).enumerate() {
-        img.data_mut()[((r.y + y) * w + r.x) * ch..][..r.width * ch].copy_from_slice(row);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -272,8 +266,12 @@ mod tests {
         fn cheap(&self, i: usize) -> Result<Image<u8>, String> {
             Ok(self.cheap[i].clone())
         }
-        fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<u8>>, String> {
-            Ok(rects.iter().map(|&r| crop(&self.full[i], r)).collect())
+        fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
+            let piece = |r| Piece {
+                full: crop(&self.full[i], r),
+                cheap: crop(&self.cheap[i], r),
+            };
+            Ok(rects.iter().map(|&r| piece(r)).collect())
         }
         fn held_bytes(&self) -> usize {
             0

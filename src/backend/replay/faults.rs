@@ -5,7 +5,7 @@
 
 use crate::capture::{Camera, CaptureError, Imu, ImuSample, Nanos, Take};
 use crate::stack::image::Image;
-use crate::stack::{Develop, Progress, Rect};
+use crate::stack::{Develop, Piece, Progress, Rect};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
@@ -76,7 +76,7 @@ impl<T> Develop<T> for HeldDevelopment<'_, T> {
         self.stack.cheap(i)
     }
 
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Image<T>>, String> {
+    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<T>>, String> {
         self.stack.full(i, rects)
     }
 
