@@ -463,6 +463,8 @@ struct Rows {
     stats: [Vec<f32>; 7],
     /// Those over every window of HALF · 2 + 1 samples.
     sums: [Vec<f32>; 7],
+    /// Slope, offset and weight of the windows on samples, and of those between two.
+    fits: [Vec<f32>; 6],
     /// The fit's coefficients at every pixel times their weights, the weights, and the sums of
     /// the three over windows.
     coef: [Vec<f32>; 6],
@@ -476,6 +478,7 @@ impl Rows {
             // One more than a row's samples: a zero after the last.
             stats: std::array::from_fn(|_| row(w.div_ceil(2) + 1)),
             sums: std::array::from_fn(|_| row(w.div_ceil(2))),
+            fits: std::array::from_fn(|_| row(w.div_ceil(2))),
             coef: std::array::from_fn(|_| row(w)),
             res: row(w),
         }
@@ -499,6 +502,7 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
     let Rows {
         stats,
         sums,
+        fits,
         coef,
         res,
     } = rows;
@@ -508,36 +512,39 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
     let n = (w - phase).div_ceil(2);
     let (on_sample, between) = ((2 * HALF + 1) as f32, (2 * HALF + 2) as f32);
     {
-        let [sg, sv, sll, slv, sgg, sgv, svv] = stats;
-        for j in 0..n {
+        let [sg, sv, sll, slv, sgg, sgv, svv] = stats.each_mut().map(|s| &mut s[..n]);
+        for (j, (g, v)) in guide[phase..]
+            .iter()
+            .zip(&v[phase..])
+            .step_by(2)
+            .enumerate()
+        {
+            sg[j] = *g;
+            sv[j] = *v;
+            sgg[j] = g * g;
+            sgv[j] = g * v;
+            svv[j] = v * v;
+        }
+        // The Laplacians where both neighbours are in the row, zero at the ends.
+        sll.fill(0.0);
+        slv.fill(0.0);
+        for j in (2usize.saturating_sub(phase)).div_ceil(2)..n {
             let x = phase + 2 * j;
-            let (lg, lv) = if (2..w - 2).contains(&x) {
-                (
-                    2.0 * guide[x] - guide[x - 2] - guide[x + 2],
-                    2.0 * v[x] - v[x - 2] - v[x + 2],
-                )
-            } else {
-                (0.0, 0.0)
-            };
-            sg[j] = guide[x];
-            sv[j] = v[x];
+            if x + 2 >= w {
+                break;
+            }
+            let lg = 2.0 * guide[x] - guide[x - 2] - guide[x + 2];
+            let lv = 2.0 * v[x] - v[x - 2] - v[x + 2];
             sll[j] = lg * lg;
             slv[j] = lg * lv;
-            sgg[j] = guide[x] * guide[x];
-            sgv[j] = guide[x] * v[x];
-            svv[j] = v[x] * v[x];
         }
-        for s in [sg, sv, sll, slv, sgg, sgv, svv] {
-            s[n] = 0.0;
-        }
+    }
+    for s in stats.iter_mut() {
+        s[n] = 0.0;
     }
     for (s, d) in stats.iter().zip(sums.iter_mut()) {
         window_sum(&s[..n], &mut d[..n], HALF);
     }
-    let [a, b, u, sa, sb, su] = coef;
-    a.fill(0.0);
-    b.fill(0.0);
-    u.fill(0.0);
     // A window of `k` samples' slope, offset and weight (as in `residual_fill`) from its sums
     // (in `stats`' order), the first two times the weight.
     let fit = |k: f32, [g, v, ll, lv, gg, gv, vv]: [f32; 7]| {
@@ -547,31 +554,63 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
         let u = 1.0 / e.max(DIR_FLOOR);
         (a * u, (mv - a * mg) * u, u)
     };
-    // The seven figures of sample or window j.
-    let at = |p: &[Vec<f32>; 7], j: usize| -> [f32; 7] { std::array::from_fn(|i| p[i][j]) };
-    // Sample j's pixel and the one after it, for the pixels with whole windows.
-    for j in (DIR_RADIUS - phase) / 2..=(w - DIR_RADIUS - 1 - phase) / 2 {
-        let (x, own) = (phase + 2 * j, at(sums, j));
-        (a[x], b[x], u[x]) = fit(on_sample, own);
-        let next = at(stats, j + HALF + 1);
-        (a[x + 1], b[x + 1], u[x + 1]) = fit(between, std::array::from_fn(|i| own[i] + next[i]));
+    // The windows on samples j0..j1 and between each and the next: those whose pixels have
+    // whole windows.
+    let (j0, j1) = (
+        (DIR_RADIUS - phase) / 2,
+        (w - DIR_RADIUS - 1 - phase) / 2 + 1,
+    );
+    let len = j1 - j0;
+    {
+        let own = sums.each_ref().map(|s| &s[j0..j1]);
+        let next = stats.each_ref().map(|s| &s[j0 + HALF + 1..j1 + HALF + 1]);
+        let [a0, b0, u0, a1, b1, u1] = fits.each_mut().map(|f| &mut f[..len]);
+        for j in 0..len {
+            let o: [f32; 7] = std::array::from_fn(|i| own[i][j]);
+            (a0[j], b0[j], u0[j]) = fit(on_sample, o);
+            let both = std::array::from_fn(|i| o[i] + next[i][j]);
+            (a1[j], b1[j], u1[j]) = fit(between, both);
+        }
+    }
+    let [a, b, u, sa, sb, su] = coef;
+    let x0 = phase + 2 * j0;
+    for (c, (on, off)) in [&mut *a, &mut *b, &mut *u]
+        .into_iter()
+        .zip([(0, 3), (1, 4), (2, 5)])
+    {
+        c.fill(0.0);
+        let pairs = c[x0..x0 + 2 * len].chunks_exact_mut(2);
+        for (p, (x, y)) in pairs.zip(fits[on][..len].iter().zip(&fits[off][..len])) {
+            p[0] = *x;
+            p[1] = *y;
+        }
     }
     window_sum(a, sa, DIR_RADIUS);
     window_sum(b, sb, DIR_RADIUS);
     window_sum(u, su, DIR_RADIUS);
-    res.fill(0.0);
-    for x in 2 * DIR_RADIUS..w - 2 * DIR_RADIUS {
-        out[x] = (sa[x] * guide[x] + sb[x]) / su[x];
-        if x % 2 == phase {
-            res[x] = v[x] - out[x];
-        }
+    let inner = 2 * DIR_RADIUS..w - 2 * DIR_RADIUS;
+    let o = &mut out[inner.clone()];
+    let (sa, sb, su, g) = (
+        &sa[inner.clone()],
+        &sb[inner.clone()],
+        &su[inner.clone()],
+        &guide[inner],
+    );
+    for x in 0..o.len() {
+        o[x] = (sa[x] * g[x] + sb[x]) / su[x];
     }
-    for x in 1..w - 1 {
-        out[x] += if x % 2 == phase {
-            res[x]
-        } else {
-            0.5 * (res[x - 1] + res[x + 1])
-        };
+    res.fill(0.0);
+    let first = 2 * DIR_RADIUS + phase;
+    for x in (first..w - 2 * DIR_RADIUS).step_by(2) {
+        res[x] = v[x] - out[x];
+    }
+    // Each sample's own residual, each pixel between two samples the mean of theirs.
+    let first = 2 - phase % 2;
+    for x in (first..w - 1).step_by(2) {
+        out[x] += res[x];
+    }
+    for x in (3 - first..w - 1).step_by(2) {
+        out[x] += 0.5 * (res[x - 1] + res[x + 1]);
     }
 }
 
@@ -626,32 +665,113 @@ fn residual_fill(
             l[i] = 4.0 * p[i] - p[i - s] - p[i + s] - p[i - d] - p[i + d];
         }
     }
-    let sampled = sites.clone().map(|s| s.contains(&1.0));
-    let mut down: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; w]);
+    // A column's samples lie every other row, the same rows for every column of one parity
+    // (none for the grid's columns without samples), and a row's in the columns of one parity.
+    let has = |rp: usize, cp: usize| sites[rp].get(cp).is_some_and(|&s| s > 0.0);
+    let rows_of: [Option<usize>; 2] = [0, 1].map(|cp| (0..2).find(|&rp| has(rp, cp)));
+    let cols_of: [Option<usize>; 2] = [0, 1].map(|rp| (0..2).find(|&cp| has(rp, cp)));
+    let half = |cp: usize| (w - cp).div_ceil(2);
+    // The window's sums are taken down the columns, then along the row, in that order and
+    // ascending, as the sums of every pixel's figures (zero where there is no sample) would be:
+    // leaving the zeros out changes no bit. A column's sums over the 3 sample rows centred on
+    // a sample row are those over 4 rows centred between two, less their last row.
+    //
+    // The eight figures at each sample of the last 8 rows (a ring, by row modulo 8), each row's
+    // samples side by side: 1, guide, sample, guide's Laplacian squared, product of the
+    // Laplacians, guide squared, guide times sample, sample squared.
+    let mut ring: [[Vec<f32>; 8]; 8] =
+        std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; w.div_ceil(2)]));
+    // Per column parity, the sums over 3 sample rows (kept for the next row) and over 4, with
+    // a zero after the last column.
+    let mut three: [[Vec<f32>; 8]; 2] =
+        std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; w.div_ceil(2) + 1]));
+    let mut four = three.clone();
+    let mut full: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; w]);
     let mut win: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; w]);
-    for y in RADIUS..h - RADIUS {
-        down.iter_mut().for_each(|d| d.fill(0.0));
-        // Red and blue have no samples on every other row: nothing to add.
-        for j in (y - RADIUS..=y + RADIUS).filter(|j| sampled[j % 2]) {
-            let (on, g, v) = (&sites[j % 2][..w], row(guide, w, j), row(m, w, j));
-            let (lg, lv) = (row(lg, w, j), row(lv, w, j));
-            // All of one length, so that the loop has no bounds checks and vectorises.
-            let [d0, d1, d2, d3, d4, d5, d6, d7] = down.each_mut().map(|d| &mut d[..w]);
-            for x in 0..w {
-                let (k, kl) = (on[x], on[x] * lg[x]);
-                let (kg, kv) = (k * g[x], k * v[x]);
-                d0[x] += k;
-                d1[x] += kg;
-                d2[x] += kv;
-                d3[x] += kl * lg[x];
-                d4[x] += kl * lv[x];
-                d5[x] += kg * g[x];
-                d6[x] += kg * v[x];
-                d7[x] += kv * v[x];
+    let mut filled = 0;
+    for y in RADIUS - 1..h - RADIUS {
+        for j in filled..=(y + 3).min(h - 1) {
+            let Some(cp) = cols_of[j % 2] else {
+                continue;
+            };
+            let n = half(cp);
+            let at = j * w + cp;
+            let (g, v) = (&guide[at..][..2 * n - 1], &m[at..][..2 * n - 1]);
+            let (l, lm) = (&lg[at..][..2 * n - 1], &lv[at..][..2 * n - 1]);
+            let [p0, p1, p2, p3, p4, p5, p6, p7] = ring[j % 8].each_mut().map(|p| &mut p[..n]);
+            for i in 0..n {
+                let (g, v, l, lm) = (g[2 * i], v[2 * i], l[2 * i], lm[2 * i]);
+                p0[i] = 1.0;
+                p1[i] = g;
+                p2[i] = v;
+                p3[i] = l * l;
+                p4[i] = l * lm;
+                p5[i] = g * g;
+                p6[i] = g * v;
+                p7[i] = v * v;
             }
         }
-        for (s, d) in win.iter_mut().zip(&down) {
-            window_sum(d, s, RADIUS);
+        filled = filled.max(y + 4);
+        // Each column parity's sums down the window's rows: `three` on rows of the samples'
+        // parity, `four` on the others.
+        let mut sums: [Option<&[Vec<f32>; 8]>; 2] = [None, None];
+        for (cp, (t3, t4)) in three.iter_mut().zip(&mut four).enumerate() {
+            let Some(rp) = rows_of[cp] else {
+                continue;
+            };
+            let n = half(cp);
+            if y % 2 == rp {
+                for (k, t) in t3.iter_mut().enumerate() {
+                    let [a, b, c] = [y - 2, y, y + 2].map(|j| &ring[j % 8][k][..n]);
+                    let t = &mut t[..n];
+                    for i in 0..n {
+                        t[i] = 0.0 + a[i] + b[i] + c[i];
+                    }
+                }
+                sums[cp] = Some(t3);
+            } else if y >= RADIUS {
+                for (k, (t, s)) in t4.iter_mut().zip(&*t3).enumerate() {
+                    let (t, s, d) = (&mut t[..n], &s[..n], &ring[(y + 3) % 8][k][..n]);
+                    for i in 0..n {
+                        t[i] = s[i] + d[i];
+                    }
+                }
+                sums[cp] = Some(t4);
+            }
+        }
+        if y < RADIUS {
+            continue;
+        }
+        // Along the row: every column's sums in the quincunx, every other column's on the grid
+        // (3 of them centred on a sample column, 4 between two).
+        match sums {
+            [Some(even), Some(odd)] => {
+                for (k, (f, s)) in full.iter_mut().zip(&mut win).enumerate() {
+                    for (pair, (e, o)) in f.chunks_exact_mut(2).zip(even[k].iter().zip(&odd[k])) {
+                        pair[0] = *e;
+                        pair[1] = *o;
+                    }
+                    if w % 2 == 1 {
+                        f[w - 1] = even[k][w / 2];
+                    }
+                    window_sum(f, s, RADIUS);
+                }
+            }
+            [Some(c), None] | [None, Some(c)] => {
+                // Sample column i is at x = 2i + s; from i = 1 (columns 0 to 2 hold no window)
+                // up to the zero after the last sample.
+                let s = usize::from(sums[0].is_none());
+                for (c, out) in c.iter().zip(&mut win) {
+                    let c = &c[..half(s) + 1];
+                    let next = c.iter().zip(&c[1..]).zip(&c[2..]).zip(&c[3..]);
+                    for (pair, (((l, m), r), after)) in out[s + 2..].chunks_exact_mut(2).zip(next) {
+                        let t = l + m + r;
+                        pair[0] = t;
+                        pair[1] = t + after;
+                    }
+                }
+            }
+            [None, None] => unreachable!("a colour without samples"),
         }
         // Without branches or bounds checks, so that it vectorises: every window of the strip
         // holds samples, and one without (k = 0) would give a = b = 0.
@@ -681,15 +801,21 @@ fn residual_fill(
         }
     }
     // The coefficients averaged over each window, weighted, applied to the guide.
-    let [da, db, dw, wa, wb, ww, _, _] = &mut down;
+    let [da, db, dw, wa, wb, ww, _, _] = &mut full;
     for y in 2 * RADIUS..h - 2 * RADIUS {
-        da.fill(0.0);
-        db.fill(0.0);
-        dw.fill(0.0);
-        for j in y - RADIUS..=y + RADIUS {
-            da.iter_mut().zip(row(a, w, j)).for_each(|(s, v)| *s += v);
-            db.iter_mut().zip(row(b, w, j)).for_each(|(s, v)| *s += v);
-            dw.iter_mut().zip(row(res, w, j)).for_each(|(s, v)| *s += v);
+        // Down the window's rows from zero, in order.
+        for (d, p) in [(&mut *da, &*a), (&mut *db, &*b), (&mut *dw, &*res)] {
+            let d = &mut d[..w];
+            let top = row(p, w, y - RADIUS);
+            for x in 0..w {
+                d[x] = 0.0 + top[x];
+            }
+            for j in y - RADIUS + 1..=y + RADIUS {
+                let r = row(p, w, j);
+                for x in 0..w {
+                    d[x] += r[x];
+                }
+            }
         }
         window_sum(da, wa, RADIUS);
         window_sum(db, wb, RADIUS);
