@@ -108,20 +108,6 @@ impl Padded {
 
     pub(super) fn new(m: &Mosaic, f: impl Fn(f32) -> f32) -> Padded {
         let (w, h) = (m.width, m.height);
-        // Reflections about the first and the last sample, repeated, so that even a mosaic
-        // smaller than the border is extended with the right colours.
-        let mirror = |i: usize, n: usize| -> usize {
-            if n == 1 {
-                return 0;
-            }
-            let period = 2 * (n - 1);
-            let i = (i + period * PAD - PAD) % period;
-            if i >= n {
-                period - i
-            } else {
-                i
-            }
-        };
         let pw = w + 2 * PAD;
         let cols: Vec<usize> = (0..pw).map(|x| mirror(x, w)).collect();
         let mut data = Vec::with_capacity(pw * (h + 2 * PAD));
@@ -133,42 +119,75 @@ impl Padded {
     }
 }
 
+/// The sample of a line of `n` that index `i` of the line padded by `PAD` on each side stands
+/// for: reflections about the first and the last sample, repeated, so that even a mosaic
+/// smaller than the border is extended with the right colours.
+fn mirror(i: usize, n: usize) -> usize {
+    if n == 1 {
+        return 0;
+    }
+    let period = 2 * (n - 1);
+    let i = (i + period * PAD - PAD) % period;
+    if i >= n {
+        period - i
+    } else {
+        i
+    }
+}
+
 /// Linear RGB, three channels, from a linear mosaic: residual interpolation on its encoded
 /// samples.
 pub fn demosaic(m: &Mosaic) -> Image<f32> {
     in_strips(m, STRIP_ROWS)
 }
 
-/// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them:
-/// each is developed with the mosaic around it as far as an output pixel's value reaches
-/// (`PAD`), rectangles close together in one window ([`windows`]), the windows in parallel.
-pub fn demosaic_regions(m: &Mosaic, rects: &[Rect]) -> Vec<Image<f32>> {
-    let srgb::Tabulated { encode, decode } = srgb::tabulated();
-    let p = Padded::new(m, |v| encode.at(v));
+/// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them,
+/// of a `width`×`height` mosaic of Bayer `order` whose samples, sRGB-encoded, `fill(y, x0, row)`
+/// gives (mosaic row `y` from column `x0` on, as many as `row` holds, all inside the mosaic):
+/// each rectangle is developed with the mosaic around it as far as an output pixel's value
+/// reaches (`PAD`, the border mirrored here), rectangles close together in one window
+/// ([`windows`]), the windows in parallel. Only the windows are ever encoded, so a frame's
+/// samples need no frame-sized float copy.
+pub fn demosaic_regions(
+    (width, height): (usize, usize),
+    order: BayerOrder,
+    fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
+    rects: &[Rect],
+) -> Vec<Image<f32>> {
+    let decode = &srgb::tabulated().decode;
     let spare = Mutex::new(Vec::<Workspace>::new());
-    let pieces: Vec<Vec<(usize, Image<f32>)>> = windows(rects, m.width)
+    let pieces: Vec<Vec<(usize, Image<f32>)>> = windows(rects, width)
         .par_iter()
         .map(|&(window, ref members)| {
             let Rect {
                 x,
                 y,
-                width,
-                height,
+                width: mw,
+                height: mh,
             } = window;
             assert!(
-                x + width <= m.width && y + height <= m.height,
+                x + mw <= width && y + mh <= height,
                 "region outside the mosaic"
             );
-            // From even coordinates, so the window keeps the pattern's phase.
+            // From even coordinates, so the window keeps the pattern's phase; in the
+            // coordinates of the mosaic padded by PAD, so its rows and columns are mirrored
+            // where they reach beyond the mosaic.
             let (x0, y0) = (x & !1, y & !1);
-            let (ww, wh) = (x + width - x0 + 2 * PAD, y + height - y0 + 2 * PAD);
-            let window: Vec<f32> = (y0..y0 + wh)
-                .flat_map(|r| &p.data[r * p.width + x0..][..ww])
-                .copied()
-                .collect();
+            let (ww, wh) = (x + mw - x0 + 2 * PAD, y + mh - y0 + 2 * PAD);
+            let inside = PAD.saturating_sub(x0).min(ww)..(PAD + width).saturating_sub(x0).min(ww);
+            let mut samples = vec![0.0f32; ww * wh];
+            for (j, line) in samples.chunks_exact_mut(ww).enumerate() {
+                let row = mirror(y0 + j, height);
+                if !inside.is_empty() {
+                    fill(row, x0 + inside.start - PAD, &mut line[inside.clone()]);
+                }
+                for k in (0..inside.start).chain(inside.end..ww) {
+                    fill(row, mirror(x0 + k, width), &mut line[k..k + 1]);
+                }
+            }
             let taken = spare.lock().unwrap_or_else(PoisonError::into_inner).pop();
             let mut ws = taken.unwrap_or_default();
-            residual_interpolation(&window, ww, m.order, &mut ws);
+            residual_interpolation(&samples, ww, order, &mut ws);
             let planes = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
             let cut = members
                 .iter()
@@ -915,6 +934,41 @@ pub(super) mod tests {
         }
     }
 
+    /// `demosaic_regions`'s rows of a mosaic in linear light: its samples encoded.
+    fn encoded_rows(m: &Mosaic) -> impl Fn(usize, usize, &mut [f32]) + Sync + '_ {
+        let encode = &srgb::tabulated().encode;
+        move |y, x0, row| {
+            for (v, s) in row.iter_mut().zip(&m.data[y * m.width + x0..]) {
+                *v = encode.at(*s);
+            }
+        }
+    }
+
+    #[test]
+    fn a_region_of_a_mosaic_smaller_than_the_border_is_its_whole_development() {
+        for order in ORDERS {
+            let rgb = Image::from_fn(9, 5, 3, |x, y, c| {
+                ((x * 7 + y * 3 + c * 5) % 11) as f32 / 11.0
+            });
+            let m = Mosaic::sample(&rgb, order);
+            let r = Rect {
+                x: 1,
+                y: 1,
+                width: 7,
+                height: 3,
+            };
+            let part = &demosaic_regions((9, 5), order, &encoded_rows(&m), &[r])[0];
+            let whole = demosaic(&m);
+            for yy in 0..3 {
+                assert_eq!(
+                    &part.data()[yy * 21..][..21],
+                    &whole.data()[((1 + yy) * 9 + 1) * 3..][..21],
+                    "{order:?} row {yy}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn regions_are_developed_exactly_as_in_the_whole_frame() {
         let scene = crate::sim::SimParams::demosaic_scene(11);
@@ -942,7 +996,8 @@ pub(super) mod tests {
         assert!(grouped.len() < rects.len(), "{grouped:?}");
         let first = grouped.iter().find(|(_, k)| k.contains(&0)).expect("held");
         assert!(first.1.contains(&4) && first.1.contains(&5), "{grouped:?}");
-        for (part, r) in demosaic_regions(&m, &rects).iter().zip(rects) {
+        let regions = demosaic_regions((w, h), m.order, &encoded_rows(&m), &rects);
+        for (part, r) in regions.iter().zip(rects) {
             let Rect {
                 x,
                 y,

@@ -39,14 +39,18 @@ impl RawStack {
         &self.frames
     }
 
-    /// The cheap development of frame `i` over each of `rects`, from its `samples`: each
-    /// sample through a table per colour to its balanced, encoded value, Malvar–He–Cutler, and
-    /// per pixel decoded, through the colour matrix and to 8-bit sRGB. The same values as
-    /// taking those steps one at a time over the whole frame, without a frame-sized buffer
-    /// between them.
-    fn cheap_over(&self, i: usize, samples: &[u16], rects: &[Rect]) -> Vec<Image<u8>> {
+    /// Frame `i`'s `samples` as both developments read them, row by row (see
+    /// [`linear::malvar_over`]): each sample through a table per colour to its balanced,
+    /// sRGB-encoded value. The same values as unpacking to linear light, balancing and
+    /// encoding the whole frame, without a frame-sized buffer between the steps.
+    fn encoded_rows<'a>(
+        &self,
+        i: usize,
+        samples: &'a [u16],
+    ) -> impl Fn(usize, usize, &mut [f32]) + Sync + 'a {
         let f = &self.frames[i];
-        let srgb::Tabulated { encode, decode } = srgb::tabulated();
+        let (order, width) = (f.order, f.width);
+        let encode = &srgb::tabulated().encode;
         let linear = Mosaic::linear(f.bits(), f.black_level);
         let gains = self.developer.locked();
         // Every value the samples take (a 16-bit word may hold more than its depth says).
@@ -56,16 +60,29 @@ impl RawStack {
                 .map(|v| encode.at(linear(v as u16) * gains[c]))
                 .collect()
         });
-        let fill = |y: usize, x0: usize, row: &mut [f32]| {
+        move |y: usize, x0: usize, row: &mut [f32]| {
             let pair = [
-                &tables[f.order.channel(x0, y)],
-                &tables[f.order.channel(x0 + 1, y)],
+                &tables[order.channel(x0, y)],
+                &tables[order.channel(x0 + 1, y)],
             ];
-            let from = &samples[y * f.width + x0..][..row.len()];
+            let from = &samples[y * width + x0..][..row.len()];
             for (k, (v, &s)) in row.iter_mut().zip(from).enumerate() {
                 *v = pair[k & 1][usize::from(s)];
             }
-        };
+        }
+    }
+
+    /// The cheap development of frame `i` over each of `rects`, from its encoded rows
+    /// ([`RawStack::encoded_rows`]): Malvar–He–Cutler, and per pixel decoded, through the
+    /// colour matrix and to 8-bit sRGB.
+    fn cheap_over(
+        &self,
+        i: usize,
+        fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
+        rects: &[Rect],
+    ) -> Vec<Image<u8>> {
+        let f = &self.frames[i];
+        let decode = &srgb::tabulated().decode;
         let pixel = |rgb: [f32; 3], out: &mut [u8]| {
             let v = self.developer.srgb(rgb.map(|v| decode.at(v)));
             for (o, v) in out.iter_mut().zip(v) {
@@ -76,7 +93,7 @@ impl RawStack {
             .iter()
             .map(|&r| {
                 let mut out = vec![0u8; r.width * r.height * 3];
-                linear::malvar_over((f.width, f.height), f.order, r, &fill, &pixel, &mut out);
+                linear::malvar_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
                 Image::from_vec(r.width, r.height, 3, out)
             })
             .collect()
@@ -85,8 +102,7 @@ impl RawStack {
 
 /// Bytes developing one `width`×`height` raw frame takes while it runs, whichever way is more:
 /// cheaply, its samples unpacked (2 bytes each) and a few rows of them encoded; in full, the
-/// samples, in linear light and encoded with the demosaic's border (4 bytes each), and the
-/// regions' windows with their working planes, up to a strip of the frame's.
+/// samples and the regions' windows with their working planes, up to a strip of the frame's.
 pub fn working_bytes(width: usize, height: usize) -> usize {
     24 * width * height
 }
@@ -104,25 +120,17 @@ impl Develop<u8> for RawStack {
             width: f.width,
             height: f.height,
         };
-        let mut pieces = self.cheap_over(i, &f.samples()?, &[whole]);
+        let samples = f.samples()?;
+        let mut pieces = self.cheap_over(i, &self.encoded_rows(i, &samples), &[whole]);
         Ok(pieces.pop().expect("one rectangle asked for"))
     }
 
     fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
         let f = &self.frames[i];
         let samples = f.samples()?;
-        let mut m = Mosaic::from_samples(
-            &samples,
-            f.width,
-            f.height,
-            f.order,
-            f.bits(),
-            f.black_level,
-        );
-        m.balance(self.developer.locked());
-        let full = demosaic_regions(&m, rects);
-        drop(m);
-        let cheap = self.cheap_over(i, &samples, rects);
+        let rows = self.encoded_rows(i, &samples);
+        let full = demosaic_regions((f.width, f.height), f.order, &rows, rects);
+        let cheap = self.cheap_over(i, &rows, rects);
         Ok(full
             .into_iter()
             .zip(cheap)
@@ -194,6 +202,38 @@ mod tests {
             stack.developer.to_srgb(&mut rgb, [1.0; 3]);
             let want = encode(&rgb);
             assert!(got == want, "{packing:?} {order:?}: not the same pixels");
+        }
+    }
+
+    #[test]
+    fn the_full_development_of_a_region_is_the_whole_frames_cut() {
+        for (packing, order, seed) in [
+            (Packing::Mipi10, BayerOrder::Grbg, 3),
+            (Packing::Le16, BayerOrder::Bggr, 11),
+        ] {
+            let stack = RawStack::new(frames(packing, order, seed)).expect("a stack");
+            let w = stack.frames[0].width;
+            // Unpacked, balanced, demosaiced whole, through the matrix, to 8 bits.
+            let mut m = stack.frames[0].mosaic().expect("unpacks");
+            m.balance(stack.developer.locked());
+            let mut rgb = super::super::demosaic::demosaic(&m);
+            stack.developer.to_srgb(&mut rgb, [1.0; 3]);
+            let want = encode(&rgb);
+            // One inside on odd coordinates, one against the top left corner.
+            let rects = [(37, 21, 50, 19), (0, 0, 30, 12)].map(|(x, y, width, height)| Rect {
+                x,
+                y,
+                width,
+                height,
+            });
+            let pieces = stack.full(0, &rects).expect("develops");
+            for (piece, r) in pieces.iter().zip(rects) {
+                for yy in 0..r.height {
+                    let got = &piece.full.data()[yy * r.width * 3..][..r.width * 3];
+                    let at = ((r.y + yy) * w + r.x) * 3;
+                    assert_eq!(got, &want.data()[at..][..r.width * 3], "{order:?} {r:?}");
+                }
+            }
         }
     }
 }
