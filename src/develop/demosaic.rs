@@ -100,6 +100,7 @@ pub(super) struct Padded {
 
 impl Padded {
     /// The sample at (x + dx, y + dy) of the unpadded mosaic (|dx|, |dy| at most `PAD`).
+    #[cfg(test)]
     pub(super) fn at(&self, x: usize, y: usize, dx: isize, dy: isize) -> f32 {
         let px = (x + PAD) as isize + dx;
         let py = (y + PAD) as isize + dy;
@@ -133,6 +134,12 @@ fn mirror(i: usize, n: usize) -> usize {
     } else {
         i
     }
+}
+
+/// The sample of a line of `n` that index `i`, at most `PAD` beyond either end, stands for: the
+/// border [`Padded`] gives the demosaic, for filters that mirror the mosaic themselves.
+pub(super) fn mirrored(i: isize, n: usize) -> usize {
+    mirror((i + PAD as isize) as usize, n)
 }
 
 /// Linear RGB, three channels, from a linear mosaic: residual interpolation on its encoded

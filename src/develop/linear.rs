@@ -4,8 +4,12 @@
 //! cheap development a stack is registered and labelled on, fine detail and all; both are the
 //! baselines the demosaic's tests compare with.
 
+use super::demosaic::mirrored;
+#[cfg(test)]
 use super::demosaic::Padded;
-use super::{BayerOrder, Mosaic};
+use super::BayerOrder;
+#[cfg(test)]
+use super::Mosaic;
 #[cfg(test)]
 use crate::stack::image::Image;
 use crate::stack::Rect;
@@ -87,23 +91,6 @@ const BORDER: usize = 2;
 /// Output rows a task of [`malvar_over`] makes: the rows it reads are a fifth more.
 const TASK_ROWS: usize = 16;
 
-/// For a line of `n` samples, the sample an index `i` up to [`BORDER`] beyond either end stands
-/// for: the demosaic's own mirrored border (about the first and the last sample, which keeps the
-/// pattern's colours), read off a line of indices padded as it pads a mosaic.
-fn mirror(n: usize) -> impl Fn(isize) -> usize {
-    let line = Mosaic {
-        width: n,
-        height: 1,
-        order: BayerOrder::Rggb,
-        data: (0..n).map(|i| i as f32).collect(),
-    };
-    let p = Padded::new(&line, |v| v);
-    move |i| {
-        let x = i.clamp(0, n as isize - 1);
-        p.at(x as usize, 0, i - x, 0) as usize
-    }
-}
-
 /// Malvar–He–Cutler (see [`malvar`]) over the `rect` of a `width`×`height` mosaic of Bayer
 /// `order`, row by row in parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from
 /// column `x0` on, as many as `row` holds (all inside the mosaic; the border is mirrored here),
@@ -124,7 +111,8 @@ pub fn malvar_over<T: Send>(
     if rect.width == 0 || rect.height == 0 {
         return;
     }
-    let (across, down) = (mirror(width), mirror(height));
+    let across = |i: isize| mirrored(i, width);
+    let down = |i: isize| mirrored(i, height);
     // The columns of a window row inside the mosaic, as positions in the row.
     let inside = BORDER.saturating_sub(rect.x)..(width + BORDER - rect.x).min(ww);
     let column = |k: usize| rect.x as isize + k as isize - BORDER as isize;

@@ -284,6 +284,15 @@ pub fn warp_frame_into<T: Sample>(
 /// size), zero elsewhere.
 pub type Patch<'a, T> = (Rect, &'a Image<T>, &'a Image<T>);
 
+/// Row `y` of a patch (counted from its own top) as its differences `.1` − `.2`, sample by
+/// sample.
+pub fn patch_row<'a, T: Sample>(patch: &Patch<'a, T>, y: usize) -> impl Iterator<Item = f32> + 'a {
+    let (r, a, b) = *patch;
+    let row = y * r.width * a.channels()..(y + 1) * r.width * a.channels();
+    let pairs = a.data()[row.clone()].iter().zip(&b.data()[row]);
+    pairs.map(|(a, b)| a.to_f32() - b.to_f32())
+}
+
 /// Adds to `out` (the reference's geometry) the warp of a `width`×`height` frame that is zero
 /// but over `patches`, each channel divided by its exposure's gain: what warping two versions
 /// of a frame that differ only there and subtracting would add, but for rounding, as the warp
@@ -360,17 +369,14 @@ impl<T: Sample> Source<'_, T> {
             Source::Patches { patches, .. } => {
                 dst.fill(0.0);
                 let end = first + dst.len() / (fw * L);
-                for (r, a, b) in patches.iter() {
+                for patch in patches.iter() {
+                    let r = patch.0;
                     for y in r.y.max(first)..(r.y + r.height).min(end) {
                         let at = ((y - first) * fw + r.x) * L;
-                        let row = (y - r.y) * r.width * C..(y - r.y + 1) * r.width * C;
-                        let (a, b) = (&a.data()[row.clone()], &b.data()[row]);
-                        let pixels = a.chunks_exact(C).zip(b.chunks_exact(C));
-                        for (d, (a, b)) in dst[at..at + r.width * L].chunks_exact_mut(L).zip(pixels)
-                        {
-                            for ((d, a), b) in d.iter_mut().zip(a).zip(b) {
-                                *d = a.to_f32() - b.to_f32();
-                            }
+                        let lanes = dst[at..at + r.width * L].chunks_exact_mut(L);
+                        let samples = lanes.flat_map(|d| &mut d[..C]);
+                        for (d, v) in samples.zip(patch_row(patch, y - r.y)) {
+                            *d = v;
                         }
                     }
                 }

@@ -5,7 +5,7 @@
 //! margins the blending and the warp reach. The stack says how it develops ([`Develop`]); the
 //! engine stays pixel work, whatever the frames are.
 
-use super::align::{warp_add_into, Patch, Rect};
+use super::align::{patch_row, warp_add_into, Patch, Rect};
 use super::fuse::{warp_of, Alignment};
 use super::image::{Image, Sample};
 use super::register::Placement;
@@ -143,14 +143,12 @@ pub(super) fn refine<T: Sample>(
             }
             None => {
                 let ch = frame.channels();
-                for (r, full, cheap) in patches {
+                for patch in &patches {
+                    let r = patch.0;
                     for y in 0..r.height {
                         let row =
                             &mut frame.data_mut()[((r.y + y) * w + r.x) * ch..][..r.width * ch];
-                        let at = y * r.width * ch..(y + 1) * r.width * ch;
-                        let pairs = full.data()[at.clone()].iter().zip(&cheap.data()[at]);
-                        for (v, (f, c)) in row.iter_mut().zip(pairs) {
-                            let d = f.to_f32() - c.to_f32();
+                        for (v, d) in row.iter_mut().zip(patch_row(patch, y)) {
                             if d != 0.0 {
                                 *v = T::from_f32(v.to_f32() + d);
                             }
