@@ -114,45 +114,62 @@ pub fn finer(pick: &[(u8, u8)], cw: usize, ch: usize, w: usize, h: usize) -> Vec
 /// Sum over the (2r+1)² window around each pixel, truncated at the borders.
 pub(super) fn box_sum(p: &Plane, r: usize) -> Plane {
     let (w, h) = (p.width(), p.height());
-    // Along rows with a running sum, then down the columns a row at a time (contiguous).
-    let mut rows = vec![0.0f32; w * h];
-    rows.par_chunks_mut(w * ROW_GROUP)
-        .zip(p.data().par_chunks(w * ROW_GROUP))
-        .for_each(|(out, src)| running_sums(src, out, w, r));
-    let mut out = vec![0.0f32; w * h];
+    Plane::from_vec(w, h, 1, box_sums(p.data(), w, h, r))
+}
+
+/// [`box_sum`] of `w`×`h` samples held in a slice, not a plane.
+pub(super) fn box_sums(data: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    assert_eq!(data.len(), w * h, "not {w}x{h} samples");
+    // Along rows with a running sum, a group of rows at a time, then down the columns a row at
+    // a time (contiguous). Every buffer is written as it is made, none zeroed first: zeroing a
+    // plane cost as much as summing it.
+    let groups: Vec<Vec<f32>> = data
+        .par_chunks(w * ROW_GROUP)
+        .map(|src| running_sums(src, w, r))
+        .collect();
+    let row = |y: usize| &groups[y / ROW_GROUP][y % ROW_GROUP * w..][..w];
+    let mut out = Vec::with_capacity(w * h);
     let mut acc = vec![0.0f32; w];
     for y in 0..=r.min(h - 1) {
-        acc.iter_mut()
-            .zip(&rows[y * w..])
-            .for_each(|(a, v)| *a += v);
+        acc.iter_mut().zip(row(y)).for_each(|(a, v)| *a += v);
     }
     for y in 0..h {
-        out[y * w..(y + 1) * w].copy_from_slice(&acc);
+        out.extend_from_slice(&acc);
         if y + r + 1 < h {
-            let add = &rows[(y + r + 1) * w..(y + r + 2) * w];
-            acc.iter_mut().zip(add).for_each(|(a, v)| *a += v);
+            acc.iter_mut()
+                .zip(row(y + r + 1))
+                .for_each(|(a, v)| *a += v);
         }
         if y >= r {
-            let sub = &rows[(y - r) * w..(y - r + 1) * w];
-            acc.iter_mut().zip(sub).for_each(|(a, v)| *a -= v);
+            acc.iter_mut().zip(row(y - r)).for_each(|(a, v)| *a -= v);
         }
     }
-    Plane::from_vec(w, h, 1, out)
+    out
 }
 
 /// Rows whose running sums [`box_sum`] advances together, one vector lane each.
 const ROW_GROUP: usize = 8;
 
-/// The (2r+1)-wide running sums along up to [`ROW_GROUP`] rows of width `w` (`src` and `out`
-/// hold them one after another). A running sum is a chain of dependent adds, bound by their
-/// latency rather than by the arithmetic; transposed into lanes, the rows' chains advance
-/// together, one vector add a step, each row still summed in its own order: the same sums to
-/// the bit, and `box_sum` about twice as fast.
-fn running_sums(src: &[f32], out: &mut [f32], w: usize, r: usize) {
+/// The (2r+1)-wide running sums along up to [`ROW_GROUP`] rows of width `w` (`src` holds them
+/// one after another, and so does the result). A running sum is a chain of dependent adds,
+/// bound by their latency rather than by the arithmetic; transposed into lanes, the rows'
+/// chains advance together, one vector add a step, each row still summed in its own order: the
+/// same sums to the bit, and `box_sum` about twice as fast.
+fn running_sums(src: &[f32], w: usize, r: usize) -> Vec<f32> {
     type Lanes = [f32; ROW_GROUP];
-    let mut lanes: Vec<Lanes> = vec![[0.0; ROW_GROUP]; w];
     let mut s: Lanes = [0.0; ROW_GROUP];
-    for (j, row) in src.chunks_exact(w).enumerate() {
+    let mut rows = src.chunks_exact(w);
+    let first = rows.next().expect("a row");
+    s[0] = first[..=r.min(w - 1)].iter().sum();
+    let mut lanes: Vec<Lanes> = first
+        .iter()
+        .map(|&v| {
+            let mut lane = [0.0; ROW_GROUP];
+            lane[0] = v;
+            lane
+        })
+        .collect();
+    for (j, row) in (1..).zip(rows) {
         for (lane, v) in lanes.iter_mut().zip(row) {
             lane[j] = *v;
         }
@@ -160,21 +177,23 @@ fn running_sums(src: &[f32], out: &mut [f32], w: usize, r: usize) {
     }
     let add = |s: &mut Lanes, v: &Lanes| s.iter_mut().zip(v).for_each(|(s, v)| *s += v);
     let sub = |s: &mut Lanes, v: &Lanes| s.iter_mut().zip(v).for_each(|(s, v)| *s -= v);
-    let mut sums: Vec<Lanes> = vec![[0.0; ROW_GROUP]; w];
-    for (x, sum) in sums.iter_mut().enumerate() {
-        *sum = s;
-        if x + r + 1 < w {
-            add(&mut s, &lanes[x + r + 1]);
-        }
-        if x >= r {
-            sub(&mut s, &lanes[x - r]);
-        }
+    let sums: Vec<Lanes> = (0..w)
+        .map(|x| {
+            let sum = s;
+            if x + r + 1 < w {
+                add(&mut s, &lanes[x + r + 1]);
+            }
+            if x >= r {
+                sub(&mut s, &lanes[x - r]);
+            }
+            sum
+        })
+        .collect();
+    let mut out = Vec::with_capacity(src.len());
+    for j in 0..src.len() / w {
+        out.extend(sums.iter().map(|sum| sum[j]));
     }
-    for (j, row) in out.chunks_exact_mut(w).enumerate() {
-        for (o, sum) in row.iter_mut().zip(&sums) {
-            *o = sum[j];
-        }
-    }
+    out
 }
 
 #[cfg(test)]
@@ -212,6 +231,48 @@ mod tests {
                     assert!((s.at(x, y, 0) - naive).abs() < 1e-4, "r {r} at {x},{y}");
                 }
             }
+        }
+    }
+
+    /// The lanes and row groups reorder no sum: every output is, to the bit, the plain running
+    /// sums along each row and then down each column.
+    #[test]
+    fn box_sums_are_the_plain_running_sums_to_the_bit() {
+        let (w, h) = (37, 29);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| ((i * 7919 % 1013) as f32 * 0.37).sin())
+            .collect();
+        for r in [0, 3, 12, 40] {
+            let mut rows = vec![0.0f32; w * h];
+            for (row, out) in data.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+                let mut s: f32 = row[..=r.min(w - 1)].iter().sum();
+                for (x, o) in out.iter_mut().enumerate() {
+                    *o = s;
+                    if x + r + 1 < w {
+                        s += row[x + r + 1];
+                    }
+                    if x >= r {
+                        s -= row[x - r];
+                    }
+                }
+            }
+            let mut want = vec![0.0f32; w * h];
+            for x in 0..w {
+                let mut s = 0.0f32;
+                for y in 0..=r.min(h - 1) {
+                    s += rows[y * w + x];
+                }
+                for y in 0..h {
+                    want[y * w + x] = s;
+                    if y + r + 1 < h {
+                        s += rows[(y + r + 1) * w + x];
+                    }
+                    if y >= r {
+                        s -= rows[(y - r) * w + x];
+                    }
+                }
+            }
+            assert_eq!(box_sums(&data, w, h, r), want, "r {r}");
         }
     }
 

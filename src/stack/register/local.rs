@@ -25,7 +25,7 @@
 //! Memory: the planes are the registration's own detection level; a side of the stack keeps one
 //! high-passed pyramid and one chained flow at a time; each field is 8 bytes per level pixel.
 
-use super::equalise::box_sum;
+use super::equalise::box_sums;
 use super::levels::to_level;
 use super::refine::Coords;
 use crate::stack::blur::gaussian_blur;
@@ -33,7 +33,7 @@ use crate::stack::image::Plane;
 use crate::stack::pyramid::{expand, reduce};
 use crate::stack::transform::{Affine, OffsetField};
 use rayon::prelude::*;
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 /// High-pass: each pyramid level minus its Gaussian blur of this σ (level pixels): keeps the
 /// texture that locates a shift, drops exposure offsets and the low frequencies defocus changes.
@@ -193,9 +193,10 @@ fn high_pass(p: &Plane) -> Plane {
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
 /// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`], what [`trust`]
 /// compares against, made the first time a pair needs it. Made once per frame: a frame is the
-/// far side of one pair of the chain and the near side of the next.
+/// far side of one pair of the chain and the near side of the next, and the reference's levels
+/// serve both sides' chains (each side makes its own ladder, as its pairs need it).
 struct Pyramid {
-    levels: Vec<Plane>,
+    levels: Arc<Vec<Plane>>,
     ladder: OnceLock<Vec<Plane>>,
 }
 
@@ -210,7 +211,10 @@ impl Pyramid {
             let reduced = reduce_nan(last);
             levels.push(reduced);
         }
-        let levels: Vec<Plane> = levels.iter().map(high_pass).collect();
+        Pyramid::with_levels(Arc::new(levels.iter().map(high_pass).collect()))
+    }
+
+    fn with_levels(levels: Arc<Vec<Plane>>) -> Pyramid {
         Pyramid {
             levels,
             ladder: OnceLock::new(),
@@ -240,14 +244,17 @@ pub struct Chain {
 }
 
 impl Chain {
-    /// Starts at the reference's level plane (not warped).
-    pub fn new(reference: &Plane, level: usize) -> Chain {
-        Chain {
-            prev: Pyramid::new(&Warped::new(reference, &Affine::IDENTITY, 0).0),
-            flow: Flow::zero(reference.width(), reference.height()),
-            sure: vec![0.0; reference.width() * reference.height()],
+    /// The chains of the two sides of the reference, both starting at its level plane (not
+    /// warped), whose pyramid they share.
+    pub fn both(reference: &Plane, level: usize) -> [Chain; 2] {
+        let start = Pyramid::new(&Warped::new(reference, &Affine::IDENTITY, 0).0);
+        let (w, h) = (reference.width(), reference.height());
+        [0, 1].map(|_| Chain {
+            prev: Pyramid::with_levels(Arc::clone(&start.levels)),
+            flow: Flow::zero(w, h),
+            sure: vec![0.0; w * h],
             level,
-        }
+        })
     }
 
     /// The offset field of the next frame outwards (`ref_to_frame` its global affine, full
@@ -299,8 +306,10 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
             f = f.expand_to(pa[k].width(), pa[k].height());
         }
         let t = Tensor::new(&pa[k]);
+        let n = pa[k].width() * pa[k].height();
+        let mut scratch = [vec![0.0; n], vec![0.0; n]];
         for _ in 0..ITERATIONS {
-            if lucas_kanade_step(&pa[k], &pb[k], &t, &mut f) < SETTLED.1 {
+            if lucas_kanade_step(&pa[k], &pb[k], &t, &mut f, &mut scratch) < SETTLED.1 {
                 break;
             }
         }
@@ -321,33 +330,41 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
 fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
     let (a, b) = (&pa.levels[0], &pb.levels[0]);
     let (w, h) = (a.width(), a.height());
+    let squared = |v: f32, a: f32| {
+        let e = v - a;
+        if e.is_nan() {
+            0.0
+        } else {
+            e * e
+        }
+    };
     let sq = |a: &Plane, b: &Plane, moved: bool| {
-        let data: Vec<f32> = (0..w * h)
-            .into_par_iter()
-            .map(|i| {
-                let (x, y) = ((i % w) as f32, (i / w) as f32);
-                let v = if moved {
-                    bilinear(b, x + f.dx[i], y + f.dy[i])
-                } else {
-                    b.data()[i]
-                };
-                let e = v - a.data()[i];
-                if e.is_nan() {
-                    0.0
-                } else {
-                    e * e
-                }
-            })
-            .collect();
-        pool(&Plane::from_vec(w, h, 1, data)).into_data()
+        let data: Vec<f32> = if moved {
+            let b = Bilinear::new(b);
+            (0..w * h)
+                .into_par_iter()
+                .map(|i| {
+                    let (x, y) = ((i % w) as f32, (i / w) as f32);
+                    squared(b.at(x + f.dx[i], y + f.dy[i]), a.data()[i])
+                })
+                .collect()
+        } else {
+            b.data()
+                .par_iter()
+                .zip(a.data())
+                .map(|(&v, &a)| squared(v, a))
+                .collect()
+        };
+        pool(&data, w, h)
     };
     // Where each frame is the sharper of the pair: its pooled high-passed energy is the larger.
     let energy = |p: &Plane| {
-        let data = p
+        let data: Vec<f32> = p
             .data()
             .iter()
-            .map(|v| if v.is_nan() { 0.0 } else { v * v });
-        pool(&Plane::from_vec(w, h, 1, data.collect())).into_data()
+            .map(|v| if v.is_nan() { 0.0 } else { v * v })
+            .collect();
+        pool(&data, w, h)
     };
     // The frames as they are through the flow, against the least residual without it of the
     // frames as they are and of the locally sharper one blurred by a rung of the ladder.
@@ -464,13 +481,8 @@ impl Tensor {
             }
         });
         let prod = |f: fn([f32; 2]) -> f32| {
-            pool(&Plane::from_vec(
-                w,
-                h,
-                1,
-                grad.iter().map(|&g| f(g)).collect(),
-            ))
-            .into_data()
+            let data: Vec<f32> = grad.iter().map(|&g| f(g)).collect();
+            pool(&data, w, h)
         };
         // The three in parallel: a side's chain of frames is otherwise one thread's work.
         let (mut xx, (xy, mut yy)) = rayon::join(
@@ -487,28 +499,41 @@ impl Tensor {
 /// One Gauss–Newton step of the windowed flow: `b` sampled through `f`, its residual against
 /// `a` weighted by `a`'s gradient and pooled over a window, each pixel's increment solved with
 /// `a`'s pooled tensor `t`. Returns the share of pixels that moved by `SETTLED.0` or more.
-fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) -> f32 {
+/// `scratch` holds the level's two products between steps (any content, the level's size).
+fn lucas_kanade_step(
+    a: &Plane,
+    b: &Plane,
+    t: &Tensor,
+    f: &mut Flow,
+    scratch: &mut [Vec<f32>; 2],
+) -> f32 {
     let (w, h) = (a.width(), a.height());
     // Per pixel: gx·e, gy·e; zero where the residual is undefined (outside the frame). Written
     // straight into the two planes pooled, with no interleaved copy between.
-    let (mut xe, mut ye) = (vec![0.0f32; w * h], vec![0.0f32; w * h]);
+    let [xe, ye] = scratch;
+    let (b, cols) = (
+        Bilinear::new(b),
+        (0..w).map(|x| x as f32).collect::<Vec<_>>(),
+    );
     xe.par_chunks_mut(w)
         .zip(ye.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, (xr, yr))| {
-            for (x, (xo, yo)) in xr.iter_mut().zip(yr).enumerate() {
-                let i = y * w + x;
-                let e = bilinear(b, x as f32 + f.dx[i], y as f32 + f.dy[i]) - a.data()[i];
-                if !e.is_nan() {
-                    let [gx, gy] = t.grad[i];
-                    (*xo, *yo) = (gx * e, gy * e);
-                }
+            let (row, yf) = (y * w..(y + 1) * w, y as f32);
+            let at = cols.iter().zip(&f.dx[row.clone()]).zip(&f.dy[row.clone()]);
+            let of = a.data()[row.clone()].iter().zip(&t.grad[row]);
+            for (((xo, yo), ((&x, &dx), &dy)), (&av, &[gx, gy])) in
+                xr.iter_mut().zip(yr).zip(at).zip(of)
+            {
+                let e = b.at(x + dx, yf + dy) - av;
+                (*xo, *yo) = if e.is_nan() {
+                    (0.0, 0.0)
+                } else {
+                    (gx * e, gy * e)
+                };
             }
         });
-    let (xe, ye) = rayon::join(
-        || pool(&Plane::from_vec(w, h, 1, xe)).into_data(),
-        || pool(&Plane::from_vec(w, h, 1, ye)).into_data(),
-    );
+    let (xe, ye) = rayon::join(|| pool(xe, w, h), || pool(ye, w, h));
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
         .enumerate()
@@ -528,25 +553,57 @@ fn lucas_kanade_step(a: &Plane, b: &Plane, t: &Tensor, f: &mut Flow) -> f32 {
         / (w * h) as f32
 }
 
-/// Bilinear sample, NaN outside or where a tap is NaN.
-fn bilinear(p: &Plane, x: f32, y: f32) -> f32 {
-    if !(x >= 0.0 && y >= 0.0 && x <= (p.width() - 1) as f32 && y <= (p.height() - 1) as f32) {
-        return f32::NAN;
-    }
-    let (x0, y0) = (x as usize, y as usize);
-    let (x1, y1) = ((x0 + 1).min(p.width() - 1), (y0 + 1).min(p.height() - 1));
-    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let d = p.data();
-    let w = p.width();
-    let top = d[y0 * w + x0] * (1.0 - fx) + d[y0 * w + x1] * fx;
-    let bot = d[y1 * w + x0] * (1.0 - fx) + d[y1 * w + x1] * fx;
-    top * (1.0 - fy) + bot * fy
+/// Bilinear samples of a plane, NaN outside or where a tap is NaN; its bounds converted to
+/// floats once, not at every sample.
+struct Bilinear<'a> {
+    data: &'a [f32],
+    w: usize,
+    h: usize,
+    /// The last column and row, as floats.
+    x_max: f32,
+    y_max: f32,
 }
 
-/// Sum over the window: two box passes, a tent close to a Gaussian, at a cost that does not
-/// grow with its size.
-fn pool(p: &Plane) -> Plane {
-    box_sum(&box_sum(p, WINDOW), WINDOW)
+impl<'a> Bilinear<'a> {
+    fn new(p: &'a Plane) -> Self {
+        let (w, h) = (p.width(), p.height());
+        Bilinear {
+            data: &p.data()[..w * h],
+            w,
+            h,
+            x_max: (w - 1) as f32,
+            y_max: (h - 1) as f32,
+        }
+    }
+
+    #[inline(always)]
+    fn at(&self, x: f32, y: f32) -> f32 {
+        if !(x >= 0.0 && y >= 0.0 && x <= self.x_max && y <= self.y_max) {
+            return f32::NAN;
+        }
+        // Truncation floors a non-negative coordinate. A checked conversion costs a dozen
+        // instructions for ranges a plane never has; this is one.
+        // SAFETY: 0 ≤ x ≤ width − 1 and 0 ≤ y ≤ height − 1 (checked above; NaN fails the
+        // check), and a plane's sides are below 2^61 (its buffer holds at most isize::MAX
+        // bytes), so both truncate to values an i64 holds.
+        let (xi, yi) = unsafe { (x.to_int_unchecked::<i64>(), y.to_int_unchecked::<i64>()) };
+        let (x0, y0) = (xi as usize, yi as usize);
+        let (x1, y1) = ((x0 + 1).min(self.w - 1), (y0 + 1).min(self.h - 1));
+        let (fx, fy) = (x - xi as f32, y - yi as f32);
+        let (r0, r1) = (
+            &self.data[y0 * self.w..][..self.w],
+            &self.data[y1 * self.w..][..self.w],
+        );
+        let top = r0[x0] * (1.0 - fx) + r0[x1] * fx;
+        let bot = r1[x0] * (1.0 - fx) + r1[x1] * fx;
+        top * (1.0 - fy) + bot * fy
+    }
+}
+
+/// Sum over the window of `w`×`h` samples: two box passes, a tent close to a Gaussian, at a
+/// cost that does not grow with its size.
+fn pool(data: &[f32], w: usize, h: usize) -> Vec<f32> {
+    box_sums(&box_sums(data, w, h, WINDOW), w, h, WINDOW)
 }
 
 #[cfg(test)]
@@ -583,9 +640,10 @@ mod tests {
         let b = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64 - 0.8, y as f64));
         let (ha, hb) = (high_pass(&a), high_pass(&b));
         let t = Tensor::new(&ha);
+        let scratch = || [vec![f32::NAN; 160 * 120], vec![f32::NAN; 160 * 120]];
         let mut f = Flow::zero(160, 120);
-        assert!(lucas_kanade_step(&ha, &hb, &t, &mut f) > 0.9);
+        assert!(lucas_kanade_step(&ha, &hb, &t, &mut f, &mut scratch()) > 0.9);
         let mut f = Flow::zero(160, 120);
-        assert_eq!(lucas_kanade_step(&ha, &ha, &t, &mut f), 0.0);
+        assert_eq!(lucas_kanade_step(&ha, &ha, &t, &mut f, &mut scratch()), 0.0);
     }
 }

@@ -335,11 +335,12 @@ pub fn register_with<T: Sample>(
             (0..reference).rev().collect::<Vec<_>>(),
             (reference + 1..n).collect(),
         ];
+        let k = near.min(frames[reference].levels.last());
+        let chains = local::Chain::both(plane(reference), k);
         let fields: Vec<Vec<(usize, Option<OffsetField>)>> = sides
             .into_par_iter()
-            .map(|side| {
-                let k = near.min(frames[reference].levels.last());
-                let mut chain = local::Chain::new(plane(reference), k);
+            .zip(chains)
+            .map(|(side, mut chain)| {
                 // The chain ends at the first frame placed without a match of its own.
                 let mut matched = true;
                 let mut fields = Vec::with_capacity(side.len());
