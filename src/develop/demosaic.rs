@@ -383,7 +383,7 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Works
 /// pixel; the same down the columns. At a red or blue sample the four one-sided averages of
 /// those differences (west, east, north, south, weighted by distance) are weighted by the
 /// inverse square of how much the differences change on that side, and added to the sample.
-/// `scratch` is overwritten.
+/// Only the values `margin` or more inside the edges are computed. `scratch` is overwritten.
 fn directional_green(
     m: &[f32],
     w: usize,
@@ -692,7 +692,9 @@ enum Lattice {
 ///
 /// Each pass goes a row at a time through row buffers, so that only the coefficients, their
 /// weights (in the residuals' plane until the residuals are taken), the fit and the residuals
-/// are whole planes.
+/// are whole planes. Only `fit`'s values `margin` or more inside the edges are computed, from
+/// the guide's `margin - GRID_REACH` or more inside.
+#[allow(clippy::too_many_arguments)]
 fn residual_fill(
     guide: &[f32],
     m: &[f32],
