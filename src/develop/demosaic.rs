@@ -78,10 +78,15 @@ const DIR_FLOOR: f32 = 1e-3;
 /// interpolation), their gradients one more and the windows summing them 4 beyond that.
 const GREEN_REACH: usize = 2 * DIR_RADIUS + 9;
 
-/// How far an output pixel's value reaches into the mosaic: the green's reach, then
-/// 2·RADIUS + 3 for each of the three residual fills (Laplacians, statistics, averaged
-/// coefficients, the residuals' interpolation).
-const REACH: usize = GREEN_REACH + 3 * (2 * RADIUS + 3);
+/// How far a residual fill's value reaches into its guide and mosaic: the Laplacians (two
+/// pixels on the grid, one diagonally in the quincunx), the statistics' windows and the
+/// coefficients' averages (RADIUS each) and the residuals' interpolation (one).
+const GRID_REACH: usize = 2 * RADIUS + 3;
+const QUINCUNX_REACH: usize = 2 * RADIUS + 2;
+
+/// How far an output pixel's value reaches into the mosaic: the green's reach, then the
+/// three residual fills', one of them on the quincunx.
+const REACH: usize = GREEN_REACH + 2 * GRID_REACH + QUINCUNX_REACH;
 
 /// The mirrored border around the mosaic, and the halo above and below each strip: the reach,
 /// made even so that padded coordinates keep the colour pattern's phase.
@@ -182,7 +187,10 @@ pub fn demosaic_regions(
             let (x0, y0) = (x & !1, y & !1);
             let (ww, wh) = (x + mw - x0 + 2 * PAD, y + mh - y0 + 2 * PAD);
             let inside = PAD.saturating_sub(x0).min(ww)..(PAD + width).saturating_sub(x0).min(ww);
-            let mut samples = vec![0.0f32; ww * wh];
+            let taken = spare.lock().unwrap_or_else(PoisonError::into_inner).pop();
+            let mut ws: Workspace = taken.unwrap_or_default();
+            let mut samples = std::mem::take(&mut ws.samples);
+            samples.resize(ww * wh, 0.0);
             for (j, line) in samples.chunks_exact_mut(ww).enumerate() {
                 let row = mirror(y0 + j, height);
                 if !inside.is_empty() {
@@ -192,9 +200,8 @@ pub fn demosaic_regions(
                     fill(row, mirror(x0 + k, width), &mut line[k..k + 1]);
                 }
             }
-            let taken = spare.lock().unwrap_or_else(PoisonError::into_inner).pop();
-            let mut ws = taken.unwrap_or_default();
             residual_interpolation(&samples, ww, order, &mut ws);
+            ws.samples = samples;
             let planes = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
             let cut = members
                 .iter()
@@ -310,6 +317,8 @@ fn in_strips(m: &Mosaic, rows: usize) -> Image<f32> {
 /// fault in and clear than to fill.
 #[derive(Default)]
 struct Workspace {
+    /// A region's window of the mosaic ([`demosaic_regions`]).
+    samples: Vec<f32>,
     /// Working planes of the green and the fills: differences, gradients, Laplacians,
     /// coefficients, residuals.
     scratch: [Vec<f32>; 5],
@@ -318,11 +327,10 @@ struct Workspace {
 }
 
 impl Workspace {
-    /// Every plane `n` samples long and cleared, so that what a strip leaves in the margins it
-    /// does not compute is the same whichever strip came before.
+    /// Every plane `n` samples long, not cleared: each pass writes what the next reads, and
+    /// what a strip before left in the margins reaches no output value.
     fn prepare(&mut self, n: usize) {
         for p in self.scratch.iter_mut().chain(&mut self.planes) {
-            p.clear();
             p.resize(n, 0.0);
         }
     }
@@ -342,14 +350,19 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Works
     };
     let (red, green, blue) = (sites(0), sites(1), sites(2));
     ws.prepare(m.len());
-    let Workspace { scratch, planes } = ws;
+    let Workspace {
+        scratch, planes, ..
+    } = ws;
     let [r, g, b, g2] = planes;
-    directional_green(m, w, order, scratch, g);
-    residual_fill(g, m, w, &red, Lattice::Grid, scratch, r);
-    residual_fill(g, m, w, &blue, Lattice::Grid, scratch, b);
+    // Each pass only as far into the halo as the next one reads: the output's margin is PAD.
+    let (last, refit) = (PAD, PAD - GRID_REACH);
+    let first = refit - QUINCUNX_REACH;
+    directional_green(m, w, order, first - GRID_REACH, scratch, g);
+    residual_fill(g, m, w, &red, Lattice::Grid, first, scratch, r);
+    residual_fill(g, m, w, &blue, Lattice::Grid, first, scratch, b);
     // Green again, at red samples with red as the guide, at blue ones with blue.
-    residual_fill(r, m, w, &green, Lattice::Quincunx, scratch, g2);
-    residual_fill(b, m, w, &green, Lattice::Quincunx, scratch, g);
+    residual_fill(r, m, w, &green, Lattice::Quincunx, refit, scratch, g2);
+    residual_fill(b, m, w, &green, Lattice::Quincunx, refit, scratch, g);
     for (y, (row, other)) in g2.chunks_exact_mut(w).zip(g.chunks_exact(w)).enumerate() {
         for ((v, o), &on) in row.iter_mut().zip(other).zip(&blue[y % 2]) {
             if on > 0.0 {
@@ -357,8 +370,8 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Works
             }
         }
     }
-    residual_fill(g2, m, w, &red, Lattice::Grid, scratch, r);
-    residual_fill(g2, m, w, &blue, Lattice::Grid, scratch, b);
+    residual_fill(g2, m, w, &red, Lattice::Grid, last, scratch, r);
+    residual_fill(g2, m, w, &blue, Lattice::Grid, last, scratch, b);
 }
 
 /// Green at red and blue samples from colour differences estimated along the rows and along
@@ -370,32 +383,49 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Works
 /// pixel; the same down the columns. At a red or blue sample the four one-sided averages of
 /// those differences (west, east, north, south, weighted by distance) are weighted by the
 /// inverse square of how much the differences change on that side, and added to the sample.
-/// `scratch` is overwritten.
+/// Only the values `margin` or more inside the edges are computed. `scratch` is overwritten.
 fn directional_green(
     m: &[f32],
     w: usize,
     order: BayerOrder,
+    margin: usize,
     scratch: &mut [Vec<f32>; 5],
     g: &mut [f32],
 ) {
     let h = m.len() / w;
+    assert!(
+        margin >= GREEN_REACH && 2 * margin < w.min(h),
+        "margin {margin} outside {w}x{h}"
+    );
     let [dh, dv, bh, bv, t] = scratch;
-    differences_along_rows(m, w, |y| order.channel(0, y) == 1, dh);
+    // Only what the green `margin` inside the edges takes: the differences along the rows on
+    // its rows and 2 more (the gradients' windows), those down the columns on its columns and
+    // 2 more and on its rows and 5 more (the gradients' windows, their offset, the gradient).
+    differences_along_rows(
+        m,
+        w,
+        margin - 2..h - margin + 2,
+        |y| order.channel(0, y) == 1,
+        dh,
+    );
     // Down the columns: along the rows of the transposed strip.
     transpose(m, w, dv);
-    differences_along_rows(dv, h, |x| order.channel(x, 0) == 1, bh);
+    let columns = margin - 2..w - margin + 2;
+    differences_along_rows(dv, h, columns, |x| order.channel(x, 0) == 1, bh);
     transpose(bh, h, dv);
-    // How much the differences change across each pixel, summed over 5×5 windows.
-    for (d, grad, step) in [(&*dh, &mut *bh, 1), (&*dv, &mut *bv, w)] {
-        grad.fill(0.0);
-        for i in step..m.len() - step {
+    // How much the differences change across each pixel, summed over 5×5 windows: on the
+    // rows `margin` in for the differences along the rows, 2 rows further for those down the
+    // columns (the side windows' offset).
+    for (d, grad, step, rim) in [(&*dh, &mut *bh, 1, margin), (&*dv, &mut *bv, w, margin - 2)] {
+        let (r0, r1) = (rim - 2, h - rim + 2);
+        for i in r0 * w..r1 * w {
             grad[i] = (d[i - step] - d[i + step]).abs();
         }
-        for (row, out) in grad.chunks_exact(w).zip(t.chunks_exact_mut(w)) {
-            window_sum(row, out, 2);
+        for y in r0..r1 {
+            window_sum(&grad[y * w..(y + 1) * w], &mut t[y * w..(y + 1) * w], 2);
         }
-        grad.fill(0.0);
-        for y in 2..h - 2 {
+        grad[rim * w..(h - rim) * w].fill(0.0);
+        for y in rim..h - rim {
             let out = &mut grad[y * w..(y + 1) * w];
             for j in y - 2..=y + 2 {
                 out.iter_mut()
@@ -407,8 +437,8 @@ fn directional_green(
     // Weights of the differences 0-3 samples away on one side.
     const NEAR: [f32; 4] = [0.56, 0.35, 0.08, 0.01];
     g.copy_from_slice(m);
-    for y in 4..h - 4 {
-        for x in 4..w - 4 {
+    for y in margin..h - margin {
+        for x in margin..w - margin {
             if order.channel(x, y) == 1 {
                 continue;
             }
@@ -451,13 +481,15 @@ fn transpose(m: &[f32], w: usize, out: &mut [f32]) {
 fn differences_along_rows(
     m: &[f32],
     w: usize,
+    rows_of: std::ops::Range<usize>,
     green_first: impl Fn(usize) -> bool,
     out: &mut [f32],
 ) {
     let mut rows = Rows::new(w);
     let (mut g, mut c) = (vec![0.0f32; w], vec![0.0f32; w]);
     let (mut g_at_c, mut c_at_g) = (vec![0.0f32; w], vec![0.0f32; w]);
-    for (y, (row, out)) in m.chunks_exact(w).zip(out.chunks_exact_mut(w)).enumerate() {
+    for y in rows_of {
+        let (row, out) = (&m[y * w..(y + 1) * w], &mut out[y * w..(y + 1) * w]);
         let phase = usize::from(!green_first(y));
         // Each colour at every pixel, its samples' neighbours' mean where it has none.
         for x in 1..w - 1 {
@@ -660,21 +692,35 @@ enum Lattice {
 ///
 /// Each pass goes a row at a time through row buffers, so that only the coefficients, their
 /// weights (in the residuals' plane until the residuals are taken), the fit and the residuals
-/// are whole planes.
+/// are whole planes. Only `fit`'s values `margin` or more inside the edges are computed, from
+/// the guide's `margin - GRID_REACH` or more inside.
+#[allow(clippy::too_many_arguments)]
 fn residual_fill(
     guide: &[f32],
     m: &[f32],
     w: usize,
     sites: &[Vec<f32>; 2],
     lattice: Lattice,
+    margin: usize,
     scratch: &mut [Vec<f32>; 5],
     fit: &mut [f32],
 ) {
-    let (n, h) = (m.len(), m.len() / w);
-    fit.fill(0.0);
+    let h = m.len() / w;
     fn row(p: &[f32], w: usize, y: usize) -> &[f32] {
         &p[y * w..(y + 1) * w]
     }
+    // Only what the output `margin` inside the edges takes: the fit one pixel further out
+    // (the residuals' interpolation), the coefficients RADIUS further (their averages), the
+    // statistics RADIUS further again (the windows), the Laplacians one sample step beyond.
+    assert!(
+        margin >= GRID_REACH && 2 * margin < w.min(h),
+        "margin {margin} outside {w}x{h}"
+    );
+    let ca = margin - RADIUS - 1;
+    // The statistics' rows and columns: x0 even, to keep the pattern's phase.
+    let (s0, s1) = (ca - RADIUS, h - ca + RADIUS);
+    let (x0, x1) = ((ca - RADIUS) & !1, w - ca + RADIUS);
+    let lw = x1 - x0;
     // The slope of the fit in each window from the colour's and the guide's Laplacians (taken
     // among the colour's samples, which are two apart on the grid and diagonal neighbours in
     // the quincunx), its offset from their means, its weight from the residuals' variance:
@@ -687,7 +733,7 @@ fn residual_fill(
         Lattice::Quincunx => (w - 1, w + 1),
     };
     for (l, p) in [(&mut *lg, guide), (&mut *lv, m)] {
-        for i in d..n - d {
+        for i in s0 * w..s1 * w {
             l[i] = 4.0 * p[i] - p[i - s] - p[i + s] - p[i - d] - p[i + d];
         }
     }
@@ -696,7 +742,7 @@ fn residual_fill(
     let has = |rp: usize, cp: usize| sites[rp].get(cp).is_some_and(|&s| s > 0.0);
     let rows_of: [Option<usize>; 2] = [0, 1].map(|cp| (0..2).find(|&rp| has(rp, cp)));
     let cols_of: [Option<usize>; 2] = [0, 1].map(|rp| (0..2).find(|&cp| has(rp, cp)));
-    let half = |cp: usize| (w - cp).div_ceil(2);
+    let half = |cp: usize| (lw - cp).div_ceil(2);
     // The window's sums are taken down the columns, then along the row, in that order and
     // ascending, as the sums of every pixel's figures (zero where there is no sample) would be:
     // leaving the zeros out changes no bit. A column's sums over the 3 sample rows centred on
@@ -706,22 +752,22 @@ fn residual_fill(
     // samples side by side: 1, guide, sample, guide's Laplacian squared, product of the
     // Laplacians, guide squared, guide times sample, sample squared.
     let mut ring: [[Vec<f32>; 8]; 8] =
-        std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; w.div_ceil(2)]));
+        std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; lw.div_ceil(2)]));
     // Per column parity, the sums over 3 sample rows (kept for the next row) and over 4, with
     // a zero after the last column.
     let mut three: [[Vec<f32>; 8]; 2] =
-        std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; w.div_ceil(2) + 1]));
+        std::array::from_fn(|_| std::array::from_fn(|_| vec![0.0; lw.div_ceil(2) + 1]));
     let mut four = three.clone();
-    let mut full: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; w]);
-    let mut win: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; w]);
-    let mut filled = 0;
-    for y in RADIUS - 1..h - RADIUS {
-        for j in filled..=(y + 3).min(h - 1) {
+    let mut full: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; lw.max(w)]);
+    let mut win: [Vec<f32>; 8] = std::array::from_fn(|_| vec![0.0; lw]);
+    let mut filled = s0;
+    for y in ca - 1..h - ca {
+        for j in filled..=y + 3 {
             let Some(cp) = cols_of[j % 2] else {
                 continue;
             };
             let n = half(cp);
-            let at = j * w + cp;
+            let at = j * w + x0 + cp;
             let (g, v) = (&guide[at..][..2 * n - 1], &m[at..][..2 * n - 1]);
             let (l, lm) = (&lg[at..][..2 * n - 1], &lv[at..][..2 * n - 1]);
             let [p0, p1, p2, p3, p4, p5, p6, p7] = ring[j % 8].each_mut().map(|p| &mut p[..n]);
@@ -755,7 +801,7 @@ fn residual_fill(
                     }
                 }
                 sums[cp] = Some(t3);
-            } else if y >= RADIUS {
+            } else if y >= ca {
                 for (k, (t, s)) in t4.iter_mut().zip(&*t3).enumerate() {
                     let (t, s, d) = (&mut t[..n], &s[..n], &ring[(y + 3) % 8][k][..n]);
                     for i in 0..n {
@@ -765,7 +811,7 @@ fn residual_fill(
                 sums[cp] = Some(t4);
             }
         }
-        if y < RADIUS {
+        if y < ca {
             continue;
         }
         // Along the row: every column's sums in the quincunx, every other column's on the grid
@@ -773,12 +819,13 @@ fn residual_fill(
         match sums {
             [Some(even), Some(odd)] => {
                 for (k, (f, s)) in full.iter_mut().zip(&mut win).enumerate() {
+                    let f = &mut f[..lw];
                     for (pair, (e, o)) in f.chunks_exact_mut(2).zip(even[k].iter().zip(&odd[k])) {
                         pair[0] = *e;
                         pair[1] = *o;
                     }
-                    if w % 2 == 1 {
-                        f[w - 1] = even[k][w / 2];
+                    if lw % 2 == 1 {
+                        f[lw - 1] = even[k][lw / 2];
                     }
                     window_sum(f, s, RADIUS);
                 }
@@ -801,11 +848,11 @@ fn residual_fill(
         }
         // Without branches or bounds checks, so that it vectorises: every window of the strip
         // holds samples, and one without (k = 0) would give a = b = 0.
-        let inner = RADIUS..w - RADIUS;
+        let inner = RADIUS..lw - RADIUS;
         let [k, sg, sv, sll, slv, sgg, sgv, svv] = win.each_ref().map(|s| &s[inner.clone()]);
-        let a = &mut a[y * w..(y + 1) * w][inner.clone()];
-        let b = &mut b[y * w..(y + 1) * w][inner.clone()];
-        let wt = &mut res[y * w..(y + 1) * w][inner];
+        let a = &mut a[y * w + x0..][..lw][inner.clone()];
+        let b = &mut b[y * w + x0..][..lw][inner.clone()];
+        let wt = &mut res[y * w + x0..][..lw][inner];
         for x in 0..a.len() {
             let n = k[x].max(1.0);
             // The mean squared residual v - a·g - b over the window's samples, b making their
@@ -827,18 +874,19 @@ fn residual_fill(
         }
     }
     // The coefficients averaged over each window, weighted, applied to the guide.
-    let [da, db, dw, wa, wb, ww, _, _] = &mut full;
-    for y in 2 * RADIUS..h - 2 * RADIUS {
+    // Over the rows and columns margin - 1 ..; the coefficients' from `ca`.
+    let [da, db, dw, wa, wb, ww, _, _] = full.each_mut().map(|v| &mut v[ca..w - ca]);
+    let (f0, f1) = (margin - 1, w - margin + 1);
+    for y in margin - 1..h - margin + 1 {
         // Down the window's rows from zero, in order.
         for (d, p) in [(&mut *da, &*a), (&mut *db, &*b), (&mut *dw, &*res)] {
-            let d = &mut d[..w];
-            let top = row(p, w, y - RADIUS);
-            for x in 0..w {
+            let top = &row(p, w, y - RADIUS)[ca..w - ca];
+            for x in 0..d.len() {
                 d[x] = 0.0 + top[x];
             }
             for j in y - RADIUS + 1..=y + RADIUS {
-                let r = row(p, w, j);
-                for x in 0..w {
+                let r = &row(p, w, j)[ca..w - ca];
+                for x in 0..d.len() {
                     d[x] += r[x];
                 }
             }
@@ -846,32 +894,39 @@ fn residual_fill(
         window_sum(da, wa, RADIUS);
         window_sum(db, wb, RADIUS);
         window_sum(dw, ww, RADIUS);
-        let (g, f) = (row(guide, w, y), &mut fit[y * w..(y + 1) * w]);
-        for x in 2 * RADIUS..w - 2 * RADIUS {
+        let inner = RADIUS..w - 2 * ca - RADIUS;
+        let (wa, wb, ww) = (&wa[inner.clone()], &wb[inner.clone()], &ww[inner]);
+        let (g, f) = (&row(guide, w, y)[f0..f1], &mut fit[y * w + f0..y * w + f1]);
+        for x in 0..f.len() {
             f[x] = (wa[x] * g[x] + wb[x]) / ww[x];
         }
     }
     // The residuals at the samples, zero elsewhere, interpolated bilinearly: each pixel gets
     // its own sample's or the mean of its two or four nearest.
-    for (y, r) in res.chunks_exact_mut(w).enumerate() {
-        let (on, f, v) = (&sites[y % 2][..w], row(fit, w, y), row(m, w, y));
-        for x in 0..w {
+    for y in margin - 1..h - margin + 1 {
+        let r = &mut res[y * w + f0..y * w + f1];
+        let (on, f, v) = (
+            &sites[y % 2][f0..f1],
+            &row(fit, w, y)[f0..f1],
+            &row(m, w, y)[f0..f1],
+        );
+        for x in 0..r.len() {
             r[x] = on[x] * (v[x] - f[x]);
         }
     }
-    for y in 1..h - 1 {
+    for y in margin..h - margin {
         let (up, mid, down) = (row(res, w, y - 1), row(res, w, y), row(res, w, y + 1));
         let f = &mut fit[y * w..(y + 1) * w];
         match lattice {
             Lattice::Grid => {
-                for x in 1..w - 1 {
+                for x in margin..w - margin {
                     let cross = mid[x - 1] + mid[x + 1] + up[x] + down[x];
                     let diagonal = up[x - 1] + up[x + 1] + down[x - 1] + down[x + 1];
                     f[x] += mid[x] + 0.5 * cross + 0.25 * diagonal;
                 }
             }
             Lattice::Quincunx => {
-                for x in 1..w - 1 {
+                for x in margin..w - margin {
                     f[x] += mid[x] + 0.25 * (mid[x - 1] + mid[x + 1] + up[x] + down[x]);
                 }
             }
