@@ -159,14 +159,32 @@ pub fn encode(rgb: &Image<f32>) -> Image<u8> {
 /// curve's libm `powf` per sample would dominate.
 #[inline]
 pub fn encode8(v: f32) -> u8 {
+    Encode8::table().at(v)
+}
+
+/// [`encode8`]'s table, for loops that fetch it once rather than per sample.
+#[derive(Clone, Copy)]
+pub struct Encode8(&'static [u8]);
+
+impl Encode8 {
     const STEPS: usize = 4096;
-    static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
-    let table = TABLE.get_or_init(|| {
-        (0..=STEPS)
-            .map(|i| (srgb_encode(i as f32 / STEPS as f32) * 255.0 + 0.5) as u8)
-            .collect()
-    });
-    table[(v.clamp(0.0, 1.0) * STEPS as f32 + 0.5) as usize]
+
+    /// The table, made on first use.
+    pub fn table() -> Encode8 {
+        static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+        Encode8(TABLE.get_or_init(|| {
+            (0..=Self::STEPS)
+                .map(|i| (srgb_encode(i as f32 / Self::STEPS as f32) * 255.0 + 0.5) as u8)
+                .collect()
+        }))
+    }
+
+    /// [`encode8`] of `v`.
+    #[inline]
+    pub fn at(self, v: f32) -> u8 {
+        // Through i32: the conversion to usize takes several instructions on x86-64.
+        self.0[(v.clamp(0.0, 1.0) * Self::STEPS as f32 + 0.5) as i32 as usize]
+    }
 }
 
 /// How one camera's raw frames are developed, with its white balance once measured.
