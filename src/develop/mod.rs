@@ -182,8 +182,13 @@ impl Encode8 {
     /// [`encode8`] of `v`.
     #[inline]
     pub fn at(self, v: f32) -> u8 {
-        // Through i32: the conversion to usize takes several instructions on x86-64.
-        self.0[(v.clamp(0.0, 1.0) * Self::STEPS as f32 + 0.5) as i32 as usize]
+        // Not `clamp`, which keeps NaN: NaN goes to 0 here, where the cast of a clamped NaN put it.
+        #[allow(clippy::manual_clamp)]
+        let step = v.max(0.0).min(1.0) * Self::STEPS as f32 + 0.5;
+        // SAFETY: 0.5 <= step <= STEPS + 0.5, inside i32 (a saturating `as` costs several
+        // instructions a sample).
+        let i: i32 = unsafe { step.to_int_unchecked() };
+        self.0[i as usize]
     }
 }
 
