@@ -151,18 +151,13 @@ pub fn decode(img: &Image<u8>) -> Image<f32> {
 
 /// Linear RGB to 8-bit sRGB.
 pub fn encode(rgb: &Image<f32>) -> Image<u8> {
-    let data = rgb.data().iter().map(|&v| encode8(v)).collect();
+    let to8 = Encode8::table();
+    let data = rgb.data().iter().map(|&v| to8.at(v)).collect();
     Image::from_vec(rgb.width(), rgb.height(), rgb.channels(), data)
 }
 
-/// A linear value as 8-bit sRGB, through a table over 12 bits of linear light made once: the
-/// curve's libm `powf` per sample would dominate.
-#[inline]
-pub fn encode8(v: f32) -> u8 {
-    Encode8::table().at(v)
-}
-
-/// [`encode8`]'s table, for loops that fetch it once rather than per sample.
+/// Linear values as 8-bit sRGB, through a table over 12 bits of linear light made once (the
+/// curve's libm `powf` per sample would dominate), fetched once per loop.
 #[derive(Clone, Copy)]
 pub struct Encode8(&'static [u8]);
 
@@ -179,7 +174,7 @@ impl Encode8 {
         }))
     }
 
-    /// [`encode8`] of `v`.
+    /// The linear value `v` as 8-bit sRGB.
     #[inline]
     pub fn at(self, v: f32) -> u8 {
         // Not `clamp`, which keeps NaN: NaN goes to 0 here, where the cast of a clamped NaN put it.

@@ -136,19 +136,26 @@ pub fn pack(packing: Packing, width: usize, samples: &[u16]) -> Vec<u8> {
 mod tests {
     use super::*;
 
+    const PACKINGS: [Packing; 4] = [
+        Packing::Bits8,
+        Packing::Mipi10,
+        Packing::Le10,
+        Packing::Le16,
+    ];
+
+    /// `n` samples spread over the packing's depth.
+    fn spread(packing: Packing, n: u32) -> Vec<u16> {
+        let max = (1u32 << packing.bits()) - 1;
+        (0..n)
+            .map(|i| ((i * 7919 + 13) % (max + 1)) as u16)
+            .collect()
+    }
+
     #[test]
     fn pack_is_what_unpack_reads() {
         // 6 samples a row leaves MIPI RAW10 a partial group at each row's end.
-        for packing in [
-            Packing::Bits8,
-            Packing::Mipi10,
-            Packing::Le10,
-            Packing::Le16,
-        ] {
-            let max = (1u32 << packing.bits()) - 1;
-            let samples: Vec<u16> = (0..18u32)
-                .map(|i| ((i * 7919 + 13) % (max + 1)) as u16)
-                .collect();
+        for packing in PACKINGS {
+            let samples = spread(packing, 18);
             let bytes = pack(packing, 6, &samples);
             assert_eq!(bytes.len(), 3 * packing.row_bytes(6), "{packing:?}");
             assert_eq!(unpack(packing, 6, 3, 0, &bytes), Ok(samples), "{packing:?}");
@@ -158,16 +165,8 @@ mod tests {
     #[test]
     fn a_rows_samples_from_any_column_are_the_unpacked_ones() {
         // 7 samples a row leaves MIPI RAW10 a partial group of three.
-        for packing in [
-            Packing::Bits8,
-            Packing::Mipi10,
-            Packing::Le10,
-            Packing::Le16,
-        ] {
-            let max = (1u32 << packing.bits()) - 1;
-            let samples: Vec<u16> = (0..14u32)
-                .map(|i| ((i * 7919 + 13) % (max + 1)) as u16)
-                .collect();
+        for packing in PACKINGS {
+            let samples = spread(packing, 14);
             let bytes = pack(packing, 7, &samples);
             let row = packing.row_bytes(7);
             for y in 0..2 {
