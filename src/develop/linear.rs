@@ -66,22 +66,41 @@ pub fn bilinear(m: &Mosaic) -> Image<f32> {
 
 /// Malvar, He and Cutler's gradient-corrected linear interpolation ("High-quality linear
 /// interpolation for demosaicing of Bayer-patterned color images", ICASSP 2004), what
-/// focusd used before residual interpolation, over a whole mosaic in its own encoding: the
-/// baseline the demosaic's tests compare with ([`malvar_over`] does the work).
+/// focusd used before residual interpolation, over a whole mosaic in its own encoding, pixel
+/// by pixel from the paper's filters: the baseline the demosaic's tests compare with, and what
+/// [`malvar_over`] must give exactly.
 #[cfg(test)]
 pub fn malvar(m: &Mosaic) -> Image<f32> {
-    let mut out = vec![0.0f32; m.width * m.height * 3];
-    let whole = Rect {
-        x: 0,
-        y: 0,
-        width: m.width,
-        height: m.height,
-    };
-    let fill = |y: usize, x0: usize, row: &mut [f32]| {
-        row.copy_from_slice(&m.data[y * m.width + x0..][..row.len()]);
-    };
-    let pixel = |rgb: [f32; 3], out: &mut [f32]| out.copy_from_slice(&rgb);
-    malvar_over((m.width, m.height), m.order, whole, &fill, &pixel, &mut out);
+    let p = Padded::new(m, |v| v);
+    let mut out = Vec::with_capacity(m.width * m.height * 3);
+    for y in 0..m.height {
+        for x in 0..m.width {
+            let s = |dx: isize, dy: isize| p.at(x, y, dx, dy);
+            let c = s(0, 0);
+            // The filters of the paper's figure 2, each times 8.
+            let cross = s(-1, 0) + s(1, 0) + s(0, -1) + s(0, 1);
+            let far = s(-2, 0) + s(2, 0) + s(0, -2) + s(0, 2);
+            let diag = s(-1, -1) + s(1, -1) + s(-1, 1) + s(1, 1);
+            let far_h = s(-2, 0) + s(2, 0);
+            let far_v = s(0, -2) + s(0, 2);
+            // Green at a red or blue sample.
+            let g_at_rb = (4.0 * c + 2.0 * cross - far) / 8.0;
+            // Red (blue) at a green sample whose row holds red (blue): from left and right.
+            let from_row =
+                (5.0 * c + 4.0 * (s(-1, 0) + s(1, 0)) - diag - far_h + 0.5 * far_v) / 8.0;
+            // ... whose column holds it: from above and below.
+            let from_col =
+                (5.0 * c + 4.0 * (s(0, -1) + s(0, 1)) - diag - far_v + 0.5 * far_h) / 8.0;
+            // Red at blue, blue at red: from the diagonals.
+            let from_diag = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
+            out.extend(match m.order.channel(x, y) {
+                0 => [c, g_at_rb, from_diag],
+                2 => [from_diag, g_at_rb, c],
+                _ if m.order.channel(x + 1, y) == 0 => [from_row, c, from_col],
+                _ => [from_col, c, from_row],
+            });
+        }
+    }
     Image::from_vec(m.width, m.height, 3, out)
 }
 
@@ -91,13 +110,56 @@ const BORDER: usize = 2;
 /// Output rows a task of [`malvar_over`] makes: the rows it reads are a fifth more.
 const TASK_ROWS: usize = 16;
 
-/// Malvar–He–Cutler (see [`malvar`]) over the `rect` of a `width`×`height` mosaic of Bayer
-/// `order`, row by row in parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from
-/// column `x0` on, as many as `row` holds (all inside the mosaic; the border is mirrored here),
-/// and `pixel` writes an output pixel's three values to its `C` samples in `out` (the `rect`'s
-/// pixels row by row). What the samples are (encoded, balanced) is up to `fill`, so that the
-/// cheap development reads a frame's integer samples through a table with no frame-sized
-/// float copy.
+/// One row's four filters of [`malvar`], each over the whole row, so that they vectorise.
+#[derive(Default)]
+struct Filtered {
+    g_at_rb: Vec<f32>,
+    from_row: Vec<f32>,
+    from_col: Vec<f32>,
+    from_diag: Vec<f32>,
+}
+
+impl Filtered {
+    /// The filters at the `n` pixels of a row whose window rows (`n + 2·BORDER` samples, the
+    /// row's own in the middle) are `w`: the same operations in the same order as [`malvar`],
+    /// so the same values.
+    fn run(&mut self, w: [&[f32]; 5], n: usize) {
+        for v in [
+            &mut self.g_at_rb,
+            &mut self.from_row,
+            &mut self.from_col,
+            &mut self.from_diag,
+        ] {
+            v.resize(n, 0.0);
+        }
+        let [m2, m1, c0, p1, p2] = w.map(|r| &r[..n + 2 * BORDER]);
+        let (g_at_rb, from_row) = (&mut self.g_at_rb[..n], &mut self.from_row[..n]);
+        let (from_col, from_diag) = (&mut self.from_col[..n], &mut self.from_diag[..n]);
+        for x in 0..n {
+            // Window column x + 2 is the pixel's.
+            let c = c0[x + 2];
+            let (left, right, up, down) = (c0[x + 1], c0[x + 3], m1[x + 2], p1[x + 2]);
+            let cross = left + right + up + down;
+            let far = c0[x] + c0[x + 4] + m2[x + 2] + p2[x + 2];
+            let diag = m1[x + 1] + m1[x + 3] + p1[x + 1] + p1[x + 3];
+            let far_h = c0[x] + c0[x + 4];
+            let far_v = m2[x + 2] + p2[x + 2];
+            g_at_rb[x] = (4.0 * c + 2.0 * cross - far) / 8.0;
+            from_row[x] = (5.0 * c + 4.0 * (left + right) - diag - far_h + 0.5 * far_v) / 8.0;
+            from_col[x] = (5.0 * c + 4.0 * (up + down) - diag - far_v + 0.5 * far_h) / 8.0;
+            from_diag[x] = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
+        }
+    }
+}
+
+/// [`malvar`] over the `rect` of a `width`×`height` mosaic of Bayer `order`, row by row in
+/// parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from column `x0` on, as
+/// many as `row` holds (all inside the mosaic; the border is mirrored here), and `pixel`
+/// writes an output pixel's three values to its `C` samples in `out` (the `rect`'s pixels row
+/// by row). What the samples are (encoded, balanced) is up to `fill`, so that the cheap
+/// development reads a frame's integer samples through a table with no frame-sized float
+/// copy. Each row's four filters run over the whole row, and each pixel takes the two its
+/// colour needs.
 pub fn malvar_over<T: Send>(
     (width, height): (usize, usize),
     order: BayerOrder,
@@ -118,53 +180,43 @@ pub fn malvar_over<T: Send>(
     let column = |k: usize| rect.x as isize + k as isize - BORDER as isize;
     out.par_chunks_mut(rect.width * C * TASK_ROWS)
         .enumerate()
-        .for_each_init(Vec::new, |window, (task, chunk)| {
-            let y0 = rect.y + task * TASK_ROWS;
-            let rows = chunk.len() / (rect.width * C);
-            window.resize((rows + 2 * BORDER) * ww, 0.0);
-            for (j, line) in window.chunks_exact_mut(ww).enumerate() {
-                let y = down(y0 as isize + j as isize - BORDER as isize);
-                fill(y, column(inside.start) as usize, &mut line[inside.clone()]);
-                for k in (0..inside.start).chain(inside.end..ww) {
-                    fill(y, across(column(k)), &mut line[k..k + 1]);
+        .for_each_init(
+            || (Vec::new(), Filtered::default()),
+            |(window, filtered), (task, chunk)| {
+                let y0 = rect.y + task * TASK_ROWS;
+                let rows = chunk.len() / (rect.width * C);
+                window.resize((rows + 2 * BORDER) * ww, 0.0);
+                for (j, line) in window.chunks_exact_mut(ww).enumerate() {
+                    let y = down(y0 as isize + j as isize - BORDER as isize);
+                    fill(y, column(inside.start) as usize, &mut line[inside.clone()]);
+                    for k in (0..inside.start).chain(inside.end..ww) {
+                        fill(y, across(column(k)), &mut line[k..k + 1]);
+                    }
                 }
-            }
-            for (yy, row) in chunk.chunks_exact_mut(rect.width * C).enumerate() {
-                let y = y0 + yy;
-                for (xx, px) in row.chunks_exact_mut(C).enumerate() {
-                    let s = |dx: isize, dy: isize| {
-                        let r = (yy + BORDER) as isize + dy;
-                        window[(r as usize) * ww + (xx as isize + BORDER as isize + dx) as usize]
+                for (yy, row) in chunk.chunks_exact_mut(rect.width * C).enumerate() {
+                    let y = y0 + yy;
+                    let w = std::array::from_fn(|j| &window[(yy + j) * ww..][..ww]);
+                    filtered.run(w, rect.width);
+                    let own = &w[BORDER][BORDER..][..rect.width];
+                    let f = &*filtered;
+                    // What each pixel of the row takes, by its column's parity.
+                    let phase = |p: usize| -> [&[f32]; 3] {
+                        let x = rect.x + p;
+                        match order.channel(x, y) {
+                            0 => [own, &f.g_at_rb, &f.from_diag],
+                            2 => [&f.from_diag, &f.g_at_rb, own],
+                            _ if order.channel(x + 1, y) == 0 => [&f.from_row, own, &f.from_col],
+                            _ => [&f.from_col, own, &f.from_row],
+                        }
                     };
-                    let x = rect.x + xx;
-                    let c = s(0, 0);
-                    // The filters of the paper's figure 2, each times 8.
-                    let cross = s(-1, 0) + s(1, 0) + s(0, -1) + s(0, 1);
-                    let far = s(-2, 0) + s(2, 0) + s(0, -2) + s(0, 2);
-                    let diag = s(-1, -1) + s(1, -1) + s(-1, 1) + s(1, 1);
-                    let far_h = s(-2, 0) + s(2, 0);
-                    let far_v = s(0, -2) + s(0, 2);
-                    // Green at a red or blue sample.
-                    let g_at_rb = (4.0 * c + 2.0 * cross - far) / 8.0;
-                    // Red (blue) at a green sample whose row holds red (blue): from left and
-                    // right.
-                    let from_row =
-                        (5.0 * c + 4.0 * (s(-1, 0) + s(1, 0)) - diag - far_h + 0.5 * far_v) / 8.0;
-                    // ... whose column holds it: from above and below.
-                    let from_col =
-                        (5.0 * c + 4.0 * (s(0, -1) + s(0, 1)) - diag - far_v + 0.5 * far_h) / 8.0;
-                    // Red at blue, blue at red: from the diagonals.
-                    let from_diag = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
-                    let rgb = match order.channel(x, y) {
-                        0 => [c, g_at_rb, from_diag],
-                        2 => [from_diag, g_at_rb, c],
-                        _ if order.channel(x + 1, y) == 0 => [from_row, c, from_col],
-                        _ => [from_col, c, from_row],
-                    };
-                    pixel(rgb, px);
+                    let phases = [phase(0), phase(1)];
+                    for (xx, px) in row.chunks_exact_mut(C).enumerate() {
+                        let [r, g, b] = phases[xx & 1];
+                        pixel([r[xx], g[xx], b[xx]], px);
+                    }
                 }
-            }
-        });
+            },
+        );
 }
 
 #[cfg(test)]

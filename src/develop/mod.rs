@@ -151,22 +151,40 @@ pub fn decode(img: &Image<u8>) -> Image<f32> {
 
 /// Linear RGB to 8-bit sRGB.
 pub fn encode(rgb: &Image<f32>) -> Image<u8> {
-    let data = rgb.data().iter().map(|&v| encode8(v)).collect();
+    let to8 = Encode8::table();
+    let data = rgb.data().iter().map(|&v| to8.at(v)).collect();
     Image::from_vec(rgb.width(), rgb.height(), rgb.channels(), data)
 }
 
-/// A linear value as 8-bit sRGB, through a table over 12 bits of linear light made once: the
-/// curve's libm `powf` per sample would dominate.
-#[inline]
-pub fn encode8(v: f32) -> u8 {
+/// Linear values as 8-bit sRGB, through a table over 12 bits of linear light made once (the
+/// curve's libm `powf` per sample would dominate), fetched once per loop.
+#[derive(Clone, Copy)]
+pub struct Encode8(&'static [u8]);
+
+impl Encode8 {
     const STEPS: usize = 4096;
-    static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
-    let table = TABLE.get_or_init(|| {
-        (0..=STEPS)
-            .map(|i| (srgb_encode(i as f32 / STEPS as f32) * 255.0 + 0.5) as u8)
-            .collect()
-    });
-    table[(v.clamp(0.0, 1.0) * STEPS as f32 + 0.5) as usize]
+
+    /// The table, made on first use.
+    pub fn table() -> Encode8 {
+        static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+        Encode8(TABLE.get_or_init(|| {
+            (0..=Self::STEPS)
+                .map(|i| (srgb_encode(i as f32 / Self::STEPS as f32) * 255.0 + 0.5) as u8)
+                .collect()
+        }))
+    }
+
+    /// The linear value `v` as 8-bit sRGB.
+    #[inline]
+    pub fn at(self, v: f32) -> u8 {
+        // Not `clamp`, which keeps NaN: NaN goes to 0 here, where the cast of a clamped NaN put it.
+        #[allow(clippy::manual_clamp)]
+        let step = v.max(0.0).min(1.0) * Self::STEPS as f32 + 0.5;
+        // SAFETY: 0.5 <= step <= STEPS + 0.5, inside i32 (a saturating `as` costs several
+        // instructions a sample).
+        let i: i32 = unsafe { step.to_int_unchecked() };
+        self.0[i as usize]
+    }
 }
 
 /// How one camera's raw frames are developed, with its white balance once measured.

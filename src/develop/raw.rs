@@ -73,27 +73,38 @@ pub fn unpack(
 ) -> Result<Vec<u16>, String> {
     let (stride, _) = layout(packing, width, height, stride, bytes.len())?;
     let row = packing.row_bytes(width);
-    let mut out = Vec::with_capacity(width * height);
-    for y in 0..height {
-        let line = &bytes[y * stride..][..row];
-        match packing {
-            Packing::Bits8 => out.extend(line.iter().map(|&b| u16::from(b))),
-            Packing::Le10 | Packing::Le16 => out.extend(
-                line.chunks_exact(2)
-                    .map(|p| u16::from_le_bytes([p[0], p[1]])),
-            ),
-            Packing::Mipi10 => {
-                // A row's last group may hold fewer than four samples, its low-bits byte last.
-                for group in line.chunks(5) {
-                    let (high, low) = group.split_at(group.len() - 1);
-                    for (i, &h) in high.iter().enumerate() {
-                        out.push(u16::from(h) << 2 | u16::from(low[0] >> (2 * i)) & 3);
-                    }
-                }
+    let mut out = vec![0; width * height];
+    for (y, samples) in out.chunks_exact_mut(width).enumerate() {
+        read_row(packing, &bytes[y * stride..][..row], 0, samples);
+    }
+    Ok(out)
+}
+
+/// Samples `x0..x0 + out.len()` of a row whose bytes are `line` (exactly the row's, unpadded:
+/// [`Packing::row_bytes`]), as [`unpack`] reads them, with no buffer for the whole row.
+#[inline]
+pub fn read_row(packing: Packing, line: &[u8], x0: usize, out: &mut [u16]) {
+    match packing {
+        Packing::Bits8 => {
+            for (o, &b) in out.iter_mut().zip(&line[x0..]) {
+                *o = u16::from(b);
+            }
+        }
+        Packing::Le10 | Packing::Le16 => {
+            for (o, p) in out.iter_mut().zip(line[2 * x0..].chunks_exact(2)) {
+                *o = u16::from_le_bytes([p[0], p[1]]);
+            }
+        }
+        Packing::Mipi10 => {
+            // A row's last group may hold fewer than four samples, its low-bits byte last.
+            let last = line.len() - 1;
+            for (k, o) in out.iter_mut().enumerate() {
+                let (group, i) = ((x0 + k) / 4 * 5, (x0 + k) % 4);
+                let low = line[(group + 4).min(last)];
+                *o = u16::from(line[group + i]) << 2 | u16::from(low >> (2 * i)) & 3;
             }
         }
     }
-    Ok(out)
 }
 
 /// `samples` (row by row, `width` a row) in the packing's bytes, rows unpadded: what
@@ -125,22 +136,46 @@ pub fn pack(packing: Packing, width: usize, samples: &[u16]) -> Vec<u8> {
 mod tests {
     use super::*;
 
+    const PACKINGS: [Packing; 4] = [
+        Packing::Bits8,
+        Packing::Mipi10,
+        Packing::Le10,
+        Packing::Le16,
+    ];
+
+    /// `n` samples spread over the packing's depth.
+    fn spread(packing: Packing, n: u32) -> Vec<u16> {
+        let max = (1u32 << packing.bits()) - 1;
+        (0..n)
+            .map(|i| ((i * 7919 + 13) % (max + 1)) as u16)
+            .collect()
+    }
+
     #[test]
     fn pack_is_what_unpack_reads() {
         // 6 samples a row leaves MIPI RAW10 a partial group at each row's end.
-        for packing in [
-            Packing::Bits8,
-            Packing::Mipi10,
-            Packing::Le10,
-            Packing::Le16,
-        ] {
-            let max = (1u32 << packing.bits()) - 1;
-            let samples: Vec<u16> = (0..18u32)
-                .map(|i| ((i * 7919 + 13) % (max + 1)) as u16)
-                .collect();
+        for packing in PACKINGS {
+            let samples = spread(packing, 18);
             let bytes = pack(packing, 6, &samples);
             assert_eq!(bytes.len(), 3 * packing.row_bytes(6), "{packing:?}");
             assert_eq!(unpack(packing, 6, 3, 0, &bytes), Ok(samples), "{packing:?}");
+        }
+    }
+
+    #[test]
+    fn a_rows_samples_from_any_column_are_the_unpacked_ones() {
+        // 7 samples a row leaves MIPI RAW10 a partial group of three.
+        for packing in PACKINGS {
+            let samples = spread(packing, 14);
+            let bytes = pack(packing, 7, &samples);
+            let row = packing.row_bytes(7);
+            for y in 0..2 {
+                for x0 in 0..7 {
+                    let mut got = vec![0; 7 - x0];
+                    read_row(packing, &bytes[y * row..][..row], x0, &mut got);
+                    assert_eq!(got, samples[y * 7 + x0..][..7 - x0], "{packing:?} {x0}");
+                }
+            }
         }
     }
 

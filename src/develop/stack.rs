@@ -4,7 +4,7 @@
 //! one white balance for the stack.
 
 use super::demosaic::demosaic_regions;
-use super::{encode, encode8, grey_world, linear, Developer, Mosaic, RawFrame};
+use super::{encode, grey_world, linear, raw, Developer, Encode8, Mosaic, RawFrame};
 use crate::stack::image::Image;
 use crate::stack::srgb;
 use crate::stack::{Develop, Piece, Rect};
@@ -39,37 +39,51 @@ impl RawStack {
         &self.frames
     }
 
-    /// Frame `i`'s `samples` as both developments read them, row by row (see
-    /// [`linear::malvar_over`]): each sample through a table per colour to its balanced,
-    /// sRGB-encoded value. The same values as unpacking to linear light, balancing and
-    /// encoding the whole frame, without a frame-sized buffer between the steps.
-    fn encoded_rows<'a>(
+    /// Frame `i`'s samples as both developments read them, row by row (see
+    /// [`linear::malvar_over`]): each sample read from the frame's bytes and through a table
+    /// per colour to its balanced, sRGB-encoded value. The same values as unpacking to linear
+    /// light, balancing and encoding the whole frame, without a frame-sized buffer between the
+    /// steps. An error if the bytes do not hold the frame.
+    fn encoded_rows(
         &self,
         i: usize,
-        samples: &'a [u16],
-    ) -> impl Fn(usize, usize, &mut [f32]) + Sync + 'a {
+    ) -> Result<impl Fn(usize, usize, &mut [f32]) + Sync + '_, String> {
         let f = &self.frames[i];
-        let (order, width) = (f.order, f.width);
+        let (packing, order) = (f.packing, f.order);
+        let (stride, _) = raw::layout(packing, f.width, f.height, f.stride, f.bytes.len())?;
+        let row_bytes = packing.row_bytes(f.width);
+        let line = move |y: usize| &f.bytes[y * stride..][..row_bytes];
+        // Every value the samples take (a 16-bit word may hold more than its depth says).
+        let mut values = 0;
+        let mut buffer = vec![0u16; f.width];
+        for y in 0..f.height {
+            raw::read_row(packing, line(y), 0, &mut buffer);
+            values = values.max(buffer.iter().max().map_or(0, |&m| usize::from(m) + 1));
+        }
         let encode = &srgb::tabulated().encode;
         let linear = Mosaic::linear(f.bits(), f.black_level);
         let gains = self.developer.locked();
-        // Every value the samples take (a 16-bit word may hold more than its depth says).
-        let values = samples.iter().max().map_or(0, |&m| usize::from(m) + 1);
         let tables: [Vec<f32>; 3] = std::array::from_fn(|c| {
             (0..values)
                 .map(|v| encode.at(linear(v as u16) * gains[c]))
                 .collect()
         });
-        move |y: usize, x0: usize, row: &mut [f32]| {
+        Ok(move |y: usize, x0: usize, row: &mut [f32]| {
             let pair = [
-                &tables[order.channel(x0, y)],
-                &tables[order.channel(x0 + 1, y)],
+                &tables[order.channel(x0, y)][..],
+                &tables[order.channel(x0 + 1, y)][..],
             ];
-            let from = &samples[y * width + x0..][..row.len()];
-            for (k, (v, &s)) in row.iter_mut().zip(from).enumerate() {
-                *v = pair[k & 1][usize::from(s)];
+            // A few samples at a time through a buffer on the stack.
+            const RUN: usize = 64;
+            let mut samples = [0u16; RUN];
+            for (j, run) in row.chunks_mut(RUN).enumerate() {
+                let samples = &mut samples[..run.len()];
+                raw::read_row(packing, line(y), x0 + j * RUN, samples);
+                for (k, (v, &s)) in run.iter_mut().zip(samples.iter()).enumerate() {
+                    *v = pair[k & 1][usize::from(s)];
+                }
             }
-        }
+        })
     }
 
     /// The cheap development of frame `i` over each of `rects`, from its encoded rows
@@ -83,11 +97,13 @@ impl RawStack {
     ) -> Vec<Image<u8>> {
         let f = &self.frames[i];
         let decode = &srgb::tabulated().decode;
+        let to8 = Encode8::table();
         let pixel = |rgb: [f32; 3], out: &mut [u8]| {
-            let v = self.developer.srgb(rgb.map(|v| decode.at(v)));
-            for (o, v) in out.iter_mut().zip(v) {
-                *o = encode8(v);
-            }
+            let linear = [decode.at(rgb[0]), decode.at(rgb[1]), decode.at(rgb[2])];
+            let v = self.developer.srgb(linear);
+            out[0] = to8.at(v[0]);
+            out[1] = to8.at(v[1]);
+            out[2] = to8.at(v[2]);
         };
         rects
             .iter()
@@ -120,15 +136,13 @@ impl Develop<u8> for RawStack {
             width: f.width,
             height: f.height,
         };
-        let samples = f.samples()?;
-        let mut pieces = self.cheap_over(i, &self.encoded_rows(i, &samples), &[whole]);
+        let mut pieces = self.cheap_over(i, &self.encoded_rows(i)?, &[whole]);
         Ok(pieces.pop().expect("one rectangle asked for"))
     }
 
     fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
         let f = &self.frames[i];
-        let samples = f.samples()?;
-        let rows = self.encoded_rows(i, &samples);
+        let rows = self.encoded_rows(i)?;
         let full = demosaic_regions((f.width, f.height), f.order, &rows, rects);
         let cheap = self.cheap_over(i, &rows, rects);
         Ok(full
@@ -192,6 +206,7 @@ mod tests {
             (Packing::Mipi10, BayerOrder::Grbg, 3),
             (Packing::Le16, BayerOrder::Bggr, 11),
             (Packing::Bits8, BayerOrder::Rggb, 29),
+            (Packing::Le10, BayerOrder::Gbrg, 5),
         ] {
             let stack = RawStack::new(frames(packing, order, seed)).expect("a stack");
             let got = stack.cheap(0).expect("develops");
