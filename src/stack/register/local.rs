@@ -27,7 +27,7 @@
 
 use super::equalise::box_sums;
 use super::levels::to_level;
-use super::refine::Coords;
+use super::refine::resample;
 use crate::stack::blur::gaussian_blur;
 use crate::stack::image::Plane;
 use crate::stack::pyramid::{expand, reduce};
@@ -153,10 +153,7 @@ impl Warped {
     pub fn new(plane: &Plane, ref_to_frame: &Affine, k: usize) -> Warped {
         let a = to_level(ref_to_frame, k);
         let (w, h) = (plane.width(), plane.height());
-        let cs = Coords::mapped(w, h, plane, |x, y| a.apply(x, y));
-        let data: Vec<f32> = (0..w * h)
-            .map(|i| cs.sample(plane, i).unwrap_or(f32::NAN))
-            .collect();
+        let data = resample(w, h, plane, |x, y| a.apply(x, y));
         Warped(Plane::from_vec(w, h, 1, data))
     }
 }
@@ -191,13 +188,15 @@ fn high_pass(p: &Plane) -> Plane {
 }
 
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
-/// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`], what [`trust`]
-/// compares against, made the first time a pair needs it. Made once per frame: a frame is the
-/// far side of one pair of the chain and the near side of the next, and the reference's levels
-/// serve both sides' chains (each side makes its own ladder, as its pairs need it).
+/// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`] and its pooled
+/// energy, what [`trust`] compares against, made the first time a pair needs them. Made once
+/// per frame: a frame is the far side of one pair of the chain and the near side of the next,
+/// and the reference's levels serve both sides' chains (each side makes its own ladder, as its
+/// pairs need it).
 struct Pyramid {
     levels: Arc<Vec<Plane>>,
     ladder: OnceLock<Vec<Plane>>,
+    energy: OnceLock<Vec<f32>>,
 }
 
 impl Pyramid {
@@ -218,6 +217,7 @@ impl Pyramid {
         Pyramid {
             levels,
             ladder: OnceLock::new(),
+            energy: OnceLock::new(),
         }
     }
 
@@ -228,6 +228,20 @@ impl Pyramid {
                 .par_iter()
                 .map(|&s| blur_nan(&self.levels[0], s))
                 .collect()
+        })
+    }
+
+    /// The working level's high-passed energy pooled over the window: where a frame is the
+    /// sharper of a pair, its energy is the larger.
+    fn energy(&self) -> &[f32] {
+        self.energy.get_or_init(|| {
+            let p = &self.levels[0];
+            let data: Vec<f32> = p
+                .data()
+                .iter()
+                .map(|v| if v.is_nan() { 0.0 } else { v * v })
+                .collect();
+            pool(&data, p.width(), p.height())
         })
     }
 }
@@ -268,6 +282,11 @@ impl Chain {
             .zip(&sure)
             .for_each(|(s, n)| *s = s.max(*n));
         self.prev = next;
+        // No pair of the chain surely moved anywhere yet: every offset is zero (on a stack
+        // without parallax, every frame's).
+        if self.sure.iter().all(|&s| s == 0.0) {
+            return None;
+        }
         let s = (1u64 << self.level) as f32;
         // Frame point = A(x + g) = A(x) + L·g for the affine's linear part L.
         let [[l00, l01, _], [l10, l11, _]] = ref_to_frame.0;
@@ -357,15 +376,6 @@ fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
         };
         pool(&data, w, h)
     };
-    // Where each frame is the sharper of the pair: its pooled high-passed energy is the larger.
-    let energy = |p: &Plane| {
-        let data: Vec<f32> = p
-            .data()
-            .iter()
-            .map(|v| if v.is_nan() { 0.0 } else { v * v })
-            .collect();
-        pool(&data, w, h)
-    };
     // The frames as they are through the flow, against the least residual without it of the
     // frames as they are and of the locally sharper one blurred by a rung of the ladder.
     let (plain, moved) = rayon::join(|| sq(a, b, false), || sq(a, b, true));
@@ -384,26 +394,25 @@ fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
     let sure = if kept.iter().all(|&k| k == 0.0) {
         vec![0.0; w * h]
     } else {
-        let (ea, eb) = rayon::join(|| energy(a), || energy(b));
-        let ladder = pa
-            .ladder()
-            .par_iter()
-            .zip(pb.ladder())
-            .map(|(blurred_a, blurred_b)| {
-                let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
-                (0..w * h)
-                    .map(|i| if ea[i] >= eb[i] { ra[i] } else { rb[i] })
-                    .collect::<Vec<f32>>()
-            })
-            .reduce(
-                || plain.clone(),
-                |x, y| x.iter().zip(&y).map(|(p, q)| p.min(*q)).collect(),
-            );
-        ladder
-            .par_iter()
+        // The least residual, lowered rung by rung in place (the plain one is not needed
+        // again), then turned into the weight in place.
+        let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
+        let mut least = plain;
+        for (blurred_a, blurred_b) in pa.ladder().iter().zip(pb.ladder()) {
+            let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
+            least
+                .par_iter_mut()
+                .zip(ea.par_iter().zip(eb))
+                .zip(ra.par_iter().zip(&rb))
+                .for_each(|((l, (ea, eb)), (ra, rb))| {
+                    *l = l.min(if ea >= eb { *ra } else { *rb });
+                });
+        }
+        least
+            .par_iter_mut()
             .zip(&moved)
-            .map(|(e0, e1)| weight(*e0, *e1))
-            .collect()
+            .for_each(|(e, e1)| *e = weight(*e, *e1));
+        least
     };
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())

@@ -265,18 +265,6 @@ impl Coords {
         self.map_every(stride, tw, th, frame, |x, y| w.apply(x, y));
     }
 
-    /// Where `map` sends each template pixel (x, y) in the frame.
-    pub fn mapped(
-        tw: usize,
-        th: usize,
-        frame: &Plane,
-        map: impl Fn(f64, f64) -> (f64, f64) + Sync,
-    ) -> Coords {
-        let mut cs = Coords::default();
-        cs.map_every(1, tw, th, frame, map);
-        cs
-    }
-
     fn map_every(
         &mut self,
         stride: usize,
@@ -285,7 +273,6 @@ impl Coords {
         frame: &Plane,
         map: impl Fn(f64, f64) -> (f64, f64) + Sync,
     ) {
-        let (iw, ih) = (frame.width() as f32 - 1.0, frame.height() as f32 - 1.0);
         let (lw, lh) = (tw.div_ceil(stride), th.div_ceil(stride));
         let n = lw * lh;
         for v in [&mut self.fx, &mut self.fy] {
@@ -306,16 +293,8 @@ impl Coords {
             .for_each(|(y, ((idx, fx), fy))| {
                 // The template's border maps nothing.
                 for lx in (1..lw).take_while(|&lx| lx * stride + 1 < tw) {
-                    let x = lx * stride;
-                    let (u, v) = map(x as f64, y as f64);
-                    let (u, v) = (u as f32, v as f32);
-                    if u >= 0.0 && v >= 0.0 && u < iw && v < ih {
-                        // Truncation floors a non-negative coordinate, without `floor`'s
-                        // library call (baseline x86-64 has no rounding instruction).
-                        let (x0, y0) = (u as usize, v as usize);
-                        idx[lx] = (y0 * frame.width() + x0) as u32;
-                        fx[lx] = u - x0 as f32;
-                        fy[lx] = v - y0 as f32;
+                    if let Some((k, u, v)) = locate(map((lx * stride) as f64, y as f64), frame) {
+                        (idx[lx], fx[lx], fy[lx]) = (k as u32, u, v);
                     }
                 }
             });
@@ -328,12 +307,60 @@ impl Coords {
         if k == u32::MAX {
             return None;
         }
-        let (k, s, fx, fy) = (k as usize, self.stride, self.fx[i], self.fy[i]);
-        let d = p.data();
-        let top = d[k] + fx * (d[k + 1] - d[k]);
-        let bot = d[k + s] + fx * (d[k + s + 1] - d[k + s]);
-        Some(top + fy * (bot - top))
+        Some(bilinear(
+            p.data(),
+            self.stride,
+            k as usize,
+            self.fx[i],
+            self.fy[i],
+        ))
     }
+}
+
+/// Where a point (u, v) lies in `frame`: the index of the top-left of its four source pixels and
+/// its offsets from it; None outside the frame.
+#[inline(always)]
+fn locate((u, v): (f64, f64), frame: &Plane) -> Option<(usize, f32, f32)> {
+    let (iw, ih) = (frame.width() as f32 - 1.0, frame.height() as f32 - 1.0);
+    let (u, v) = (u as f32, v as f32);
+    (u >= 0.0 && v >= 0.0 && u < iw && v < ih).then(|| {
+        // Truncation floors a non-negative coordinate, without `floor`'s library call
+        // (baseline x86-64 has no rounding instruction).
+        let (x0, y0) = (u as usize, v as usize);
+        (y0 * frame.width() + x0, u - x0 as f32, v - y0 as f32)
+    })
+}
+
+/// Bilinear sample of `d` (rows of `stride`) at offsets (fx, fy) from its sample `k`.
+#[inline(always)]
+fn bilinear(d: &[f32], stride: usize, k: usize, fx: f32, fy: f32) -> f32 {
+    let top = d[k] + fx * (d[k + 1] - d[k]);
+    let bot = d[k + stride] + fx * (d[k + stride + 1] - d[k + stride]);
+    top + fy * (bot - top)
+}
+
+/// `frame` sampled where `map` sends each pixel (x, y) of a `tw`×`th` template, NaN outside the
+/// frame and on the template's border: what [`Coords`] maps and samples, in one pass that holds
+/// no map (a plane warped once needs none).
+pub fn resample(
+    tw: usize,
+    th: usize,
+    frame: &Plane,
+    map: impl Fn(f64, f64) -> (f64, f64) + Sync,
+) -> Vec<f32> {
+    (0..tw * th)
+        .into_par_iter()
+        .map(|i| {
+            let (x, y) = (i % tw, i / tw);
+            let inner = x != 0 && y != 0 && x + 1 < tw && y + 1 < th;
+            let at = inner
+                .then(|| locate(map(x as f64, y as f64), frame))
+                .flatten();
+            at.map_or(f32::NAN, |(k, fx, fy)| {
+                bilinear(frame.data(), frame.width(), k, fx, fy)
+            })
+        })
+        .collect()
 }
 
 /// Each layer of the frame's stack resampled onto the template through `cs` and corrected for
