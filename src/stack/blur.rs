@@ -33,7 +33,13 @@ pub(crate) fn gaussian_half(sigma: f32) -> Vec<f32> {
 
 /// Gaussian blur with replicated edges; σ ≤ 0 returns a copy.
 pub fn gaussian_blur(src: &Plane, sigma: f32) -> Plane {
-    let mut dst = Plane::from_vec(0, 0, 1, Vec::new());
+    if sigma <= 0.0 {
+        return src.clone();
+    }
+    // Allocated zeroed rather than grown from empty (which clears it in place): a plane of
+    // 1 MiB or more gets its own mapping, which is zero already, so it is not cleared twice.
+    let (w, h) = (src.width(), src.height());
+    let mut dst = Plane::from_vec(w, h, 1, vec![0.0; w * h]);
     gaussian_blur_into(src, sigma, &mut dst);
     dst
 }
