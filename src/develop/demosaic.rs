@@ -36,7 +36,7 @@
 //! whole frame's result (a test checks it) while the working planes stay a strip's size.
 
 use super::{BayerOrder, Mosaic};
-use crate::stack::image::Image;
+use crate::stack::image::{Image, Sample};
 use crate::stack::srgb;
 use crate::stack::Rect;
 use rayon::prelude::*;
@@ -153,22 +153,25 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
     in_strips(m, STRIP_ROWS)
 }
 
-/// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them,
-/// of a `width`×`height` mosaic of Bayer `order` whose samples, sRGB-encoded, `fill(y, x0, row)`
-/// gives (mosaic row `y` from column `x0` on, as many as `row` holds, all inside the mosaic):
-/// each rectangle is developed with the mosaic around it as far as an output pixel's value
-/// reaches (`PAD`, the border mirrored here), rectangles close together in one window
-/// ([`windows`]), the windows in parallel. Only the windows are ever encoded, so a frame's
-/// samples need no frame-sized float copy.
-pub fn demosaic_regions(
+/// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them
+/// before it decodes them, of a `width`×`height` mosaic of Bayer `order` whose samples,
+/// sRGB-encoded, `fill(y, x0, row)` gives (mosaic row `y` from column `x0` on, as many as `row`
+/// holds, all inside the mosaic): each rectangle is developed with the mosaic around it as far
+/// as an output pixel's value reaches (`PAD`, the border mirrored here), rectangles close
+/// together in one window ([`windows`]), the windows in parallel. `pixel` writes an output
+/// pixel's three encoded values to its three samples (decoded, through a colour matrix, to 8 bits:
+/// whatever the caller keeps), in the window's task, so that no float copy of the regions is
+/// made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
+/// copy.
+pub fn demosaic_regions<T: Sample>(
     (width, height): (usize, usize),
     order: BayerOrder,
     fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
+    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
     rects: &[Rect],
-) -> Vec<Image<f32>> {
-    let decode = &srgb::tabulated().decode;
+) -> Vec<Image<T>> {
     let spare = Mutex::new(Vec::<Workspace>::new());
-    let pieces: Vec<Vec<(usize, Image<f32>)>> = windows(rects, width)
+    let pieces: Vec<Vec<(usize, Image<T>)>> = windows(rects, width)
         .par_iter()
         .map(|&(window, ref members)| {
             let Rect {
@@ -208,10 +211,14 @@ pub fn demosaic_regions(
                 .map(|&k| {
                     let r = rects[k];
                     let (dx, dy) = (r.x - x0 + PAD, r.y - y0 + PAD);
-                    let img = Image::from_fn(r.width, r.height, 3, |xx, yy, c| {
-                        decode.at(planes[c][(yy + dy) * ww + xx + dx])
-                    });
-                    (k, img)
+                    let mut out = vec![T::default(); r.width * r.height * 3];
+                    for (yy, row) in out.chunks_exact_mut(r.width * 3).enumerate() {
+                        let at = (yy + dy) * ww + dx;
+                        for (xx, px) in row.chunks_exact_mut(3).enumerate() {
+                            pixel(planes.map(|p| p[at + xx]), px);
+                        }
+                    }
+                    (k, Image::from_vec(r.width, r.height, 3, out))
                 })
                 .collect();
             spare
@@ -221,7 +228,7 @@ pub fn demosaic_regions(
             cut
         })
         .collect();
-    let mut out: Vec<Option<Image<f32>>> = rects.iter().map(|_| None).collect();
+    let mut out: Vec<Option<Image<T>>> = rects.iter().map(|_| None).collect();
     for (k, img) in pieces.into_iter().flatten() {
         out[k] = Some(img);
     }
@@ -1006,6 +1013,14 @@ pub(super) mod tests {
         }
     }
 
+    /// `demosaic_regions`'s pixels as [`demosaic`] gives them: decoded to linear light.
+    fn decoded(rgb: [f32; 3], out: &mut [f32]) {
+        let decode = &srgb::tabulated().decode;
+        for (o, v) in out.iter_mut().zip(rgb) {
+            *o = decode.at(v);
+        }
+    }
+
     #[test]
     fn a_region_of_a_mosaic_smaller_than_the_border_is_its_whole_development() {
         for order in ORDERS {
@@ -1019,7 +1034,7 @@ pub(super) mod tests {
                 width: 7,
                 height: 3,
             };
-            let part = &demosaic_regions((9, 5), order, &encoded_rows(&m), &[r])[0];
+            let part = &demosaic_regions((9, 5), order, &encoded_rows(&m), &decoded, &[r])[0];
             let whole = demosaic(&m);
             for yy in 0..3 {
                 assert_eq!(
@@ -1058,7 +1073,7 @@ pub(super) mod tests {
         assert!(grouped.len() < rects.len(), "{grouped:?}");
         let first = grouped.iter().find(|(_, k)| k.contains(&0)).expect("held");
         assert!(first.1.contains(&4) && first.1.contains(&5), "{grouped:?}");
-        let regions = demosaic_regions((w, h), m.order, &encoded_rows(&m), &rects);
+        let regions = demosaic_regions((w, h), m.order, &encoded_rows(&m), &decoded, &rects);
         for (part, r) in regions.iter().zip(rects) {
             let Rect {
                 x,

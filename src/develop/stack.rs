@@ -4,14 +4,19 @@
 //! one white balance for the stack.
 
 use super::demosaic::demosaic_regions;
-use super::{encode, grey_world, linear, raw, Developer, Encode8, Mosaic, RawFrame};
+use super::{grey_world, linear, raw, Developer, Encode8, Mosaic, RawFrame};
 use crate::stack::image::Image;
 use crate::stack::srgb;
 use crate::stack::{Develop, Piece, Rect};
+use rayon::prelude::*;
 
 pub struct RawStack {
     frames: Vec<RawFrame>,
     developer: Developer,
+    /// Per frame, every value its samples take (one more than the largest; a 16-bit word may
+    /// hold more than its depth says): the length of its tables ([`RawStack::encoded_rows`]),
+    /// found once rather than by a scan of the frame at every development.
+    values: Vec<usize>,
 }
 
 impl RawStack {
@@ -31,7 +36,12 @@ impl RawStack {
         for f in &mut frames {
             f.white_balance = Some(gains);
         }
-        Ok(RawStack { frames, developer })
+        let values = frames.par_iter().map(values).collect();
+        Ok(RawStack {
+            frames,
+            developer,
+            values,
+        })
     }
 
     /// The raw frames, with the stack's white balance.
@@ -53,13 +63,7 @@ impl RawStack {
         let (stride, _) = raw::layout(packing, f.width, f.height, f.stride, f.bytes.len())?;
         let row_bytes = packing.row_bytes(f.width);
         let line = move |y: usize| &f.bytes[y * stride..][..row_bytes];
-        // Every value the samples take (a 16-bit word may hold more than its depth says).
-        let mut values = 0;
-        let mut buffer = vec![0u16; f.width];
-        for y in 0..f.height {
-            raw::read_row(packing, line(y), 0, &mut buffer);
-            values = values.max(buffer.iter().max().map_or(0, |&m| usize::from(m) + 1));
-        }
+        let values = self.values[i];
         let encode = &srgb::tabulated().encode;
         let linear = Mosaic::linear(f.bits(), f.black_level);
         let gains = self.developer.locked();
@@ -86,9 +90,23 @@ impl RawStack {
         })
     }
 
+    /// What both developments make of a pixel's encoded red, green and blue: decoded, through
+    /// the colour matrix and to 8-bit sRGB.
+    fn pixel(&self) -> impl Fn([f32; 3], &mut [u8]) + Sync + '_ {
+        let decode = &srgb::tabulated().decode;
+        let to8 = Encode8::table();
+        move |rgb: [f32; 3], out: &mut [u8]| {
+            let linear = [decode.at(rgb[0]), decode.at(rgb[1]), decode.at(rgb[2])];
+            let v = self.developer.srgb(linear);
+            out[0] = to8.at(v[0]);
+            out[1] = to8.at(v[1]);
+            out[2] = to8.at(v[2]);
+        }
+    }
+
     /// The cheap development of frame `i` over each of `rects`, from its encoded rows
-    /// ([`RawStack::encoded_rows`]): Malvar–He–Cutler, and per pixel decoded, through the
-    /// colour matrix and to 8-bit sRGB.
+    /// ([`RawStack::encoded_rows`]): Malvar–He–Cutler, each pixel through
+    /// [`RawStack::pixel`].
     fn cheap_over(
         &self,
         i: usize,
@@ -96,15 +114,7 @@ impl RawStack {
         rects: &[Rect],
     ) -> Vec<Image<u8>> {
         let f = &self.frames[i];
-        let decode = &srgb::tabulated().decode;
-        let to8 = Encode8::table();
-        let pixel = |rgb: [f32; 3], out: &mut [u8]| {
-            let linear = [decode.at(rgb[0]), decode.at(rgb[1]), decode.at(rgb[2])];
-            let v = self.developer.srgb(linear);
-            out[0] = to8.at(v[0]);
-            out[1] = to8.at(v[1]);
-            out[2] = to8.at(v[2]);
-        };
+        let pixel = self.pixel();
         rects
             .iter()
             .map(|&r| {
@@ -114,6 +124,27 @@ impl RawStack {
             })
             .collect()
     }
+}
+
+/// One more than the largest of frame `f`'s samples; 0 where its bytes do not hold it.
+fn values(f: &RawFrame) -> usize {
+    let Ok((stride, _)) = raw::layout(f.packing, f.width, f.height, f.stride, f.bytes.len()) else {
+        return 0;
+    };
+    let row_bytes = f.packing.row_bytes(f.width);
+    let mut buffer = vec![0u16; f.width];
+    (0..f.height)
+        .map(|y| {
+            raw::read_row(
+                f.packing,
+                &f.bytes[y * stride..][..row_bytes],
+                0,
+                &mut buffer,
+            );
+            buffer.iter().max().map_or(0, |&m| usize::from(m) + 1)
+        })
+        .max()
+        .unwrap_or(0)
 }
 
 /// Bytes developing one `width`×`height` raw frame takes while it runs, whichever way is more:
@@ -143,18 +174,12 @@ impl Develop<u8> for RawStack {
     fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
         let f = &self.frames[i];
         let rows = self.encoded_rows(i)?;
-        let full = demosaic_regions((f.width, f.height), f.order, &rows, rects);
+        let full = demosaic_regions((f.width, f.height), f.order, &rows, &self.pixel(), rects);
         let cheap = self.cheap_over(i, &rows, rects);
         Ok(full
             .into_iter()
             .zip(cheap)
-            .map(|(mut rgb, cheap)| {
-                self.developer.to_srgb(&mut rgb, [1.0; 3]);
-                Piece {
-                    full: encode(&rgb),
-                    cheap,
-                }
-            })
+            .map(|(full, cheap)| Piece { full, cheap })
             .collect())
     }
 
@@ -172,7 +197,7 @@ impl Develop<u8> for RawStack {
 mod tests {
     use super::*;
     use crate::develop::raw::{pack, Packing};
-    use crate::develop::{decode, BayerOrder};
+    use crate::develop::{decode, encode, BayerOrder};
     use crate::sim::{self, SimParams};
 
     /// Raw frames of a simulated scene: its truth mosaicked, at `bits` bits over a black level,
