@@ -293,12 +293,14 @@ pub fn patch_row<'a, T: Sample>(patch: &Patch<'a, T>, y: usize) -> impl Iterator
     pairs.map(|(a, b)| a.to_f32() - b.to_f32())
 }
 
-/// Adds to `out` (the reference's geometry) the warp of a `width`×`height` frame that is zero
-/// but over `patches`, each channel divided by its exposure's gain: what warping two versions
-/// of a frame that differ only there and subtracting would add, but for rounding, as the warp
-/// is linear and an exposure's offset cancels. Only the output rows whose taps reach a patch
-/// are resampled; pixels the frame does not cover are left as they are.
-pub fn warp_add_into<T: Sample>(
+/// Brings a frame's full development into `out` (the reference's geometry), which holds the
+/// frame's cheap development warped (`exposure` undone and rounded), perhaps changed since:
+/// `patches` give both developments over parts of a `width`×`height` frame. Where an output
+/// pixel is still the cheap warp's value, it takes the full development's warp, rounded once,
+/// as warping the full development would give it; where it was changed since (the spill
+/// removal), the warp of the difference is added, keeping the change. Only the output rows
+/// whose taps reach a patch are resampled; pixels the frame does not cover are left as they are.
+pub fn warp_refine_into<T: Sample>(
     patches: &[Patch<T>],
     (width, height): (usize, usize),
     warp: &Warp,
@@ -306,25 +308,19 @@ pub fn warp_add_into<T: Sample>(
     out: &mut Image<T>,
     scratch: &mut Vec<f32>,
 ) {
-    let gains: Vec<Exposure> = exposure
-        .iter()
-        .map(|e| Exposure {
-            gain: e.gain,
-            offset: 0.0,
-        })
-        .collect();
     let source = Source::Patches {
         size: (width, height),
         patches,
     };
-    warp_source(source, None, warp, &gains, out, scratch);
+    warp_source(source, None, warp, exposure, out, scratch);
 }
 
 /// What a warp resamples.
 #[derive(Clone, Copy)]
 enum Source<'a, T> {
     Frame(&'a Image<T>),
-    /// A frame of this size, zero but over the patches ([`warp_add_into`]).
+    /// A frame of this size, zero but over the patches ([`warp_refine_into`]): a pixel's first
+    /// half of lanes the difference full − cheap, its second half the cheap development.
     Patches {
         size: (usize, usize),
         patches: &'a [Patch<'a, T>],
@@ -370,13 +366,19 @@ impl<T: Sample> Source<'_, T> {
                 dst.fill(0.0);
                 let end = first + dst.len() / (fw * L);
                 for patch in patches.iter() {
-                    let r = patch.0;
+                    let (r, cheap) = (patch.0, patch.2.data());
                     for y in r.y.max(first)..(r.y + r.height).min(end) {
                         let at = ((y - first) * fw + r.x) * L;
-                        let lanes = dst[at..at + r.width * L].chunks_exact_mut(L);
-                        let samples = lanes.flat_map(|d| &mut d[..C]);
-                        for (d, v) in samples.zip(patch_row(patch, y - r.y)) {
+                        let pixels = &mut dst[at..at + r.width * L];
+                        let diffs = pixels.chunks_exact_mut(L).flat_map(|d| &mut d[..C]);
+                        for (d, v) in diffs.zip(patch_row(patch, y - r.y)) {
                             *d = v;
+                        }
+                        let cheap = cheap[(y - r.y) * r.width * C..][..r.width * C].chunks(C);
+                        for (d, v) in pixels.chunks_exact_mut(L).zip(cheap) {
+                            for (d, v) in d[L / 2..].iter_mut().zip(v) {
+                                *d = v.to_f32();
+                            }
                         }
                     }
                 }
@@ -399,11 +401,24 @@ fn warp_source<T: Sample>(
     const GREY: usize = warp_lanes(1);
     const COLOUR: usize = warp_lanes(3);
     let (w, ch) = (out.width(), out.channels());
+    const GREY2: usize = refine_lanes(1);
+    const COLOUR2: usize = refine_lanes(3);
     let data = out.data_mut();
-    match ch {
-        1 => warp_channels::<T, 1, GREY>(source, fallback, w, warp, exposure, data, scratch),
-        3 => warp_channels::<T, 3, COLOUR>(source, fallback, w, warp, exposure, data, scratch),
-        n => panic!("frames have 1 or 3 channels, not {n}"),
+    let patches = matches!(source, Source::Patches { .. });
+    match (ch, patches) {
+        (1, false) => {
+            warp_channels::<T, 1, GREY>(source, fallback, w, warp, exposure, data, scratch)
+        }
+        (3, false) => {
+            warp_channels::<T, 3, COLOUR>(source, fallback, w, warp, exposure, data, scratch)
+        }
+        (1, true) => {
+            warp_channels::<T, 1, GREY2>(source, fallback, w, warp, exposure, data, scratch)
+        }
+        (3, true) => {
+            warp_channels::<T, 3, COLOUR2>(source, fallback, w, warp, exposure, data, scratch)
+        }
+        (n, _) => panic!("frames have 1 or 3 channels, not {n}"),
     }
 }
 
@@ -415,6 +430,12 @@ pub const fn warp_lanes(channels: usize) -> usize {
     } else {
         4
     }
+}
+
+/// Float lanes a pixel [`warp_refine_into`] holds its patches in: the difference and the cheap
+/// development, each in the warp's lanes. The memory plan counts its scratch with this.
+pub const fn refine_lanes(channels: usize) -> usize {
+    2 * warp_lanes(channels)
 }
 
 /// `warp_frame_into` for `C` channels, so the tap loops unroll. The frame's samples are held as
@@ -473,7 +494,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
             table: &table,
             raster: &raster,
             correct,
-            add: fallback.is_none(),
+            refine: fallback.is_none(),
         };
         spans.par_extend(
             data[y0 * w * C..y1 * w * C]
@@ -538,8 +559,9 @@ struct Rows<'a, const C: usize> {
     raster: &'a Raster<'a>,
     /// Per channel, the exposure correction as a multiply-add.
     correct: [(f32, f32); C],
-    /// Whether the warped values are added to the output's (no fallback) or replace them.
-    add: bool,
+    /// Whether the source is [`warp_refine_into`]'s patches (no fallback): then the output is
+    /// refined, not replaced.
+    refine: bool,
 }
 
 impl<const C: usize> Rows<'_, C> {
@@ -646,7 +668,7 @@ impl<const C: usize> Rows<'_, C> {
         let mut acc = [0.0f32; L];
         match taps {
             Taps::Outside => {
-                if !self.add {
+                if !self.refine {
                     out.copy_from_slice(&fallback[x * C..][..C]);
                 }
                 return None;
@@ -687,12 +709,23 @@ impl<const C: usize> Rows<'_, C> {
         Some(acc)
     }
 
-    /// A pixel's channels from its lanes' sums, exposure corrected.
+    /// A pixel's channels from its lanes' sums, exposure corrected; refining (see
+    /// [`warp_refine_into`]), the full development's value where the output is still the cheap
+    /// one's, else the output plus the difference.
     #[inline(always)]
     fn store<T: Sample>(&self, acc: &[f32], out: &mut [T]) {
-        for ((o, &(m, b)), s) in out.iter_mut().zip(&self.correct).zip(acc) {
-            let v = s * m + b;
-            *o = T::from_f32(if self.add { o.to_f32() + v } else { v });
+        let half = acc.len() / 2;
+        for (c, (o, &(m, b))) in out.iter_mut().zip(&self.correct).enumerate() {
+            *o = match self.refine {
+                false => T::from_f32(acc[c] * m + b),
+                true => {
+                    let (cheap, diff) = (acc[half + c] * m + b, acc[c] * m);
+                    match *o == T::from_f32(cheap) {
+                        true => T::from_f32(cheap + diff),
+                        false => T::from_f32(o.to_f32() + diff),
+                    }
+                }
+            };
         }
     }
 
@@ -801,14 +834,22 @@ mod tests {
         assert_eq!([after[0], after[2], after[3]], [0.0; 3]);
     }
 
-    #[test]
-    fn a_warped_difference_added_is_the_difference_of_the_warps() {
-        // Two versions of a frame differing over two rectangles, warped through a roll and a
-        // field with a gain and an offset: adding the difference's warp to the second's warp
-        // gives the first's, and rows no rectangle reaches are not touched.
+    /// Two developments of a frame, `full` and `cheap`, differing over two rectangles, their
+    /// pieces there, and a warp through a roll and a field with gains and an offset.
+    struct Refining<T> {
+        full: Image<T>,
+        cheap: Image<T>,
+        rects: [Rect; 2],
+        pieces: Vec<(Image<T>, Image<T>)>,
+        warp: Warp,
+        exposure: [Exposure; 3],
+    }
+
+    fn refining<T: Sample>() -> Refining<T> {
         let (w, h) = (160, 400);
-        let b = Image::from_fn(w, h, 3, |x, y, c| {
-            ((x * 7 + y * 13 + c * 5) % 97) as f32 / 97.0
+        let level = |v: f32| T::from_f32(v * T::MAX);
+        let cheap = Image::from_fn(w, h, 3, |x, y, c| {
+            level(((x * 7 + y * 13 + c * 5) % 97) as f32 / 97.0 * 0.5 + 0.1)
         });
         let rects = [
             Rect {
@@ -824,21 +865,19 @@ mod tests {
                 height: 20,
             },
         ];
-        let a = Image::from_fn(w, h, 3, |x, y, c| {
+        let full = Image::from_fn(w, h, 3, |x, y, c| {
             let inside =
                 |r: &Rect| (r.x..r.x + r.width).contains(&x) && (r.y..r.y + r.height).contains(&y);
             let k = rects.iter().position(inside).map_or(0, |k| k + 1);
-            b.at(x, y, c) + 0.1 * k as f32 * ((x + c) % 3) as f32
+            let v = cheap.at(x, y, c).to_f32() / T::MAX;
+            level(v + 0.1 * k as f32 * ((x + c) % 3) as f32 / 3.0)
         });
-        let crop = |img: &Image<f32>, r: Rect| {
+        let crop = |img: &Image<T>, r: Rect| {
             Image::from_fn(r.width, r.height, 3, |x, y, c| img.at(r.x + x, r.y + y, c))
         };
-        let pieces: Vec<(Image<f32>, Image<f32>)> =
-            rects.iter().map(|&r| (crop(&a, r), crop(&b, r))).collect();
-        let patches: Vec<Patch<f32>> = rects
+        let pieces = rects
             .iter()
-            .zip(&pieces)
-            .map(|(&r, (pa, pb))| (r, pa, pb))
+            .map(|&r| (crop(&full, r), crop(&cheap, r)))
             .collect();
         let field = OffsetField {
             step: 40.0,
@@ -861,18 +900,48 @@ mod tests {
                 offset: -0.01,
             },
         ];
-        let reference = Image::from_fn(w, h, 3, |_, _, _| 0.5f32);
-        let (want, _) = warp_frame(&a, &reference, &warp, &exposure);
-        let (mut got, _) = warp_frame(&b, &reference, &warp, &exposure);
-        let before = got.clone();
-        warp_add_into(
-            &patches,
-            (w, h),
-            &warp,
-            &exposure,
-            &mut got,
-            &mut Vec::new(),
-        );
+        Refining {
+            full,
+            cheap,
+            rects,
+            pieces,
+            warp,
+            exposure,
+        }
+    }
+
+    impl<T: Sample> Refining<T> {
+        /// The full and the cheap development warped onto a grey reference, and the cheap one
+        /// refined with `changed` applied to it first.
+        fn run(&self, changed: impl Fn(&mut Image<T>)) -> [Image<T>; 3] {
+            let (w, h) = (self.full.width(), self.full.height());
+            let reference = Image::from_fn(w, h, 3, |_, _, _| T::from_f32(0.5 * T::MAX));
+            let (want, _) = warp_frame(&self.full, &reference, &self.warp, &self.exposure);
+            let (mut got, _) = warp_frame(&self.cheap, &reference, &self.warp, &self.exposure);
+            changed(&mut got);
+            let before = got.clone();
+            let patches: Vec<Patch<T>> = (self.rects.iter().zip(&self.pieces))
+                .map(|(&r, (full, cheap))| (r, full, cheap))
+                .collect();
+            let (size, scratch) = ((w, h), &mut Vec::new());
+            warp_refine_into(
+                &patches,
+                size,
+                &self.warp,
+                &self.exposure,
+                &mut got,
+                scratch,
+            );
+            [want, before, got]
+        }
+    }
+
+    #[test]
+    fn refining_gives_the_full_developments_warp() {
+        // In floats: refined, the cheap development's warp is the full one's, and rows no
+        // rectangle reaches are not touched.
+        let case = refining::<f32>();
+        let [want, before, got] = case.run(|_| ());
         let worst = got
             .data()
             .iter()
@@ -880,9 +949,66 @@ mod tests {
             .map(|(g, w)| (g - w).abs())
             .fold(0.0f32, f32::max);
         assert!(worst < 1e-5, "off by {worst}");
-        assert!(got != before, "nothing added");
-        let last = (340..h).all(|y| (0..w).all(|x| got.at(x, y, 1) == before.at(x, y, 1)));
+        assert!(got != before, "nothing refined");
+        let h = got.height();
+        let last =
+            (340..h).all(|y| (0..got.width()).all(|x| got.at(x, y, 1) == before.at(x, y, 1)));
         assert!(last, "rows beyond every rectangle's reach changed");
+    }
+
+    #[test]
+    fn refining_rounds_once_and_keeps_what_was_changed() {
+        // In 8 bits: a pixel whose taps all fall inside a rectangle takes the full development's
+        // warp as warping it gives it, rounded once (not the cheap warp's rounding plus the
+        // difference's); a pixel changed after the warp keeps its change, the difference added.
+        let case = refining::<u8>();
+        let changed = |x: usize, y: usize| (x + y).is_multiple_of(7);
+        let [want, before, got] = case.run(|img| {
+            for y in 0..img.height() {
+                for x in (0..img.width()).filter(|&x| changed(x, y)) {
+                    let (v, at) = (img.at(x, y, 0), (y * img.width() + x) * 3);
+                    img.data_mut()[at] = v.wrapping_add(9);
+                }
+            }
+        });
+        let [r0, r1] = case.rects;
+        // Output pixels whose 4×4 taps all lie inside a rectangle.
+        let inside = |x: usize, y: usize| {
+            let (u, v) = case.warp.apply(x as f64, y as f64);
+            let within = |a: f64, from: usize, n: usize| {
+                a - 2.0 >= from as f64 && a + 3.0 < (from + n) as f64
+            };
+            [r0, r1]
+                .iter()
+                .any(|r| within(u, r.x, r.width) && within(v, r.y, r.height))
+        };
+        let (mut exact, mut kept, mut unrounded) = (0, 0, 0);
+        for y in 0..got.height() {
+            for x in (0..got.width()).filter(|&x| inside(x, y)) {
+                if changed(x, y) {
+                    // The change (9 levels) survives: the full development's value is not
+                    // taken over it.
+                    let with_change = i32::from(got.at(x, y, 0)) - i32::from(want.at(x, y, 0));
+                    assert!((8..=10).contains(&with_change), "({x}, {y}): {with_change}");
+                    kept += 1;
+                } else {
+                    for c in 0..3 {
+                        let (g, w) = (got.at(x, y, c), want.at(x, y, c));
+                        assert!(g.abs_diff(w) <= 1, "({x}, {y}, {c}): {g} against {w}");
+                        exact += usize::from(g == w);
+                        unrounded += 1;
+                    }
+                }
+            }
+        }
+        // Adding the rounded difference to the rounded cheap warp leaves about a third of the
+        // values a level off; rounded once, all but float noise match.
+        assert!(kept > 0 && unrounded > 1000);
+        assert!(
+            exact * 1000 >= unrounded * 999,
+            "{exact} of {unrounded} exact"
+        );
+        assert!(got != before, "nothing refined");
     }
 
     #[test]
@@ -1026,7 +1152,7 @@ mod tests {
             table: &table,
             raster: &raster,
             correct: [(0.9, 2.0), (1.0, 0.0), (1.1, -3.0)],
-            add: false,
+            refine: false,
         };
         let (mut one, mut pairs) = (vec![0u8; w * 3], vec![0u8; w * 3]);
         for y in 0..h {

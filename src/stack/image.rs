@@ -7,7 +7,7 @@ pub fn luma_of(r: f32, g: f32, b: f32) -> f32 {
 }
 
 /// A pixel sample type: `u8`, `u16` or `f32` (normalised to 0..=1).
-pub trait Sample: Copy + Send + Sync + Default + 'static {
+pub trait Sample: Copy + PartialEq + Send + Sync + Default + 'static {
     /// The value that stands for full scale.
     const MAX: f32;
     fn to_f32(self) -> f32;

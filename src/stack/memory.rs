@@ -7,7 +7,7 @@
 //! smallest bands: a phone that swaps is slower, one whose job aborted has nothing. Estimates are
 //! in bytes and are checked against `/usr/bin/time -v` by `benches/bench-memory`.
 
-use super::align::{warp_lanes, warp_scratch_rows};
+use super::align::{refine_lanes, warp_lanes, warp_scratch_rows};
 use super::compose::{band_grid, bytes_per_row, pyramid_levels};
 use super::params::{FuseParams, Method};
 use super::register::finest_level;
@@ -181,10 +181,11 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
         false => 0,
     };
     // Developing lazily: one frame's development, its regions developed both ways (at most the
-    // whole frame each), and the rows of their difference a band of the warp reads.
+    // whole frame each), and the rows of their difference and cheap development a band of the
+    // warp reads.
     let develop = match s.held {
         0 => 0,
-        _ => frames + s.developing + 2 * frame + 4 * scratch * warp_lanes(s.channels),
+        _ => frames + s.developing + 2 * frame + 4 * scratch * refine_lanes(s.channels),
     };
     let peak_of = |k: usize, label_rows: usize, rows: usize| {
         let stages = [

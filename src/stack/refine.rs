@@ -5,7 +5,7 @@
 //! margins the blending and the warp reach. The stack says how it develops ([`Develop`]); the
 //! engine stays pixel work, whatever the frames are.
 
-use super::align::{patch_row, warp_add_into, Patch, Rect};
+use super::align::{patch_row, warp_refine_into, Patch, Rect};
 use super::fuse::{warp_of, Alignment};
 use super::image::{Image, Sample};
 use super::register::Placement;
@@ -82,9 +82,10 @@ impl std::fmt::Display for Developed {
 /// Replaces the cheap development in `frames` (warped onto the reference as the fuse holds
 /// them, and spill-removed) by the full one wherever frame `i` is labelled `i` and the
 /// labelling found texture (`labels`, `textured`; `None`: everywhere), within [`MARGIN`].
-/// Whatever the fuse did to a frame after warping it (the spill removal) is kept: the
-/// difference between the full and the cheap development, zero outside the regions, is warped
-/// as the frame was (its exposure's gain undone; the offset cancels) and added.
+/// Whatever the fuse did to a frame after warping it (the spill removal) is kept: a pixel the
+/// fuse left as warped takes the full development warped as the frame was, rounded once; one
+/// it changed, the difference between the full and the cheap development warped and added
+/// ([`warp_refine_into`]).
 pub(super) fn refine<T: Sample>(
     frames: &mut [Image<T>],
     labels: Option<(&[u8], &[bool])>,
@@ -139,7 +140,7 @@ pub(super) fn refine<T: Sample>(
         done.rects += rects.len();
         match &warp {
             Some((warp, exposure)) => {
-                warp_add_into(&patches, (w, h), warp, exposure, frame, &mut scratch);
+                warp_refine_into(&patches, (w, h), warp, exposure, frame, &mut scratch);
             }
             None => {
                 let ch = frame.channels();
