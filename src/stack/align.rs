@@ -467,6 +467,10 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
     let reach = warp.field.as_ref().map_or(0.0, |f| f.reach(1.0));
     let band = band_rows(w as f64 * warp.affine.0[1][0].abs() + 2.0 * reach);
     let (table, raster) = (keys_table(), warp.raster(w));
+    let cells = match source {
+        Source::Patches { size, patches } => Some(Cells::of(patches, size)),
+        Source::Frame(_) => None,
+    };
     let h = data.len() / (w * C);
     let mut spans = Vec::with_capacity(h);
     for y0 in (0..h).step_by(band) {
@@ -494,7 +498,7 @@ fn warp_channels<T: Sample, const C: usize, const L: usize>(
             table: &table,
             raster: &raster,
             correct,
-            refine: fallback.is_none(),
+            refine: cells.as_ref(),
         };
         spans.par_extend(
             data[y0 * w * C..y1 * w * C]
@@ -559,9 +563,48 @@ struct Rows<'a, const C: usize> {
     raster: &'a Raster<'a>,
     /// Per channel, the exposure correction as a multiply-add.
     correct: [(f32, f32); C],
-    /// Whether the source is [`warp_refine_into`]'s patches (no fallback): then the output is
-    /// refined, not replaced.
-    refine: bool,
+    /// Where the source is [`warp_refine_into`]'s patches (no fallback), the cells near them:
+    /// the output is refined there, not replaced, and left as it is elsewhere.
+    refine: Option<&'a Cells>,
+}
+
+/// Which cells of a frame lie within a bicubic tap's reach of [`warp_refine_into`]'s patches:
+/// an output pixel whose frame point falls in none reads only zeros, and refining leaves it as
+/// it is, so it is not resampled (a frame's regions are a small part of the rows they span).
+struct Cells {
+    cols: usize,
+    rows: usize,
+    near: Vec<bool>,
+}
+
+impl Cells {
+    const SIZE: usize = 8;
+
+    fn of<T: Sample>(patches: &[Patch<T>], (w, h): (usize, usize)) -> Cells {
+        // A point's taps reach from the column before its own to three after (see `tap`).
+        const REACH: usize = 4;
+        let (cols, rows) = (w.div_ceil(Self::SIZE), h.div_ceil(Self::SIZE));
+        let mut near = vec![false; cols * rows];
+        for (r, ..) in patches {
+            let span = |from: usize, n: usize, cells: usize| {
+                from.saturating_sub(REACH) / Self::SIZE
+                    ..((from + n + REACH) / Self::SIZE + 1).min(cells)
+            };
+            let xs = span(r.x, r.width, cols);
+            for cy in span(r.y, r.height, rows) {
+                near[cy * cols + xs.start..cy * cols + xs.end].fill(true);
+            }
+        }
+        Cells { cols, rows, near }
+    }
+
+    fn near(&self, (u, v): (f64, f64)) -> bool {
+        let (cx, cy) = (
+            u.max(0.0) as usize / Self::SIZE,
+            v.max(0.0) as usize / Self::SIZE,
+        );
+        cx < self.cols && cy < self.rows && self.near[cy * self.cols + cx]
+    }
 }
 
 impl<const C: usize> Rows<'_, C> {
@@ -613,7 +656,11 @@ impl<const C: usize> Rows<'_, C> {
         let mut pad = 0.0f32;
         let at = self.raster.row(y);
         for (x, out) in row.chunks_exact_mut(C).enumerate() {
-            let acc = self.pixel::<T, L>(self.taps(at(x)), x, &mut span, out, fallback);
+            let point = at(x);
+            if self.refine.is_some_and(|cells| !cells.near(point)) {
+                continue;
+            }
+            let acc = self.pixel::<T, L>(self.taps(point), x, &mut span, out, fallback);
             if let Some(acc) = acc {
                 pad += acc[L - 1];
                 self.store(&acc, out);
@@ -668,7 +715,7 @@ impl<const C: usize> Rows<'_, C> {
         let mut acc = [0.0f32; L];
         match taps {
             Taps::Outside => {
-                if !self.refine {
+                if self.refine.is_none() {
                     out.copy_from_slice(&fallback[x * C..][..C]);
                 }
                 return None;
@@ -717,8 +764,8 @@ impl<const C: usize> Rows<'_, C> {
         let half = acc.len() / 2;
         for (c, (o, &(m, b))) in out.iter_mut().zip(&self.correct).enumerate() {
             *o = match self.refine {
-                false => T::from_f32(acc[c] * m + b),
-                true => {
+                None => T::from_f32(acc[c] * m + b),
+                Some(_) => {
                     let (cheap, diff) = (acc[half + c] * m + b, acc[c] * m);
                     match *o == T::from_f32(cheap) {
                         true => T::from_f32(cheap + diff),
@@ -1152,7 +1199,7 @@ mod tests {
             table: &table,
             raster: &raster,
             correct: [(0.9, 2.0), (1.0, 0.0), (1.1, -3.0)],
-            refine: false,
+            refine: None,
         };
         let (mut one, mut pairs) = (vec![0u8; w * 3], vec![0u8; w * 3]);
         for y in 0..h {
