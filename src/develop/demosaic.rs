@@ -158,16 +158,16 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
 /// sRGB-encoded, `fill(y, x0, row)` gives (mosaic row `y` from column `x0` on, as many as `row`
 /// holds, all inside the mosaic): each rectangle is developed with the mosaic around it as far
 /// as an output pixel's value reaches (`PAD`, the border mirrored here), rectangles close
-/// together in one window ([`windows`]), the windows in parallel. `pixels` writes a row of
-/// output pixels' encoded red, green and blue (each colour's side by side) to their three
-/// samples each (decoded, through a colour matrix, to 8 bits: whatever the caller keeps), in
-/// the window's task, so that no float copy of the regions is made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
+/// together in one window ([`windows`]), the windows in parallel. `pixel` writes an output
+/// pixel's three encoded values to its three samples (decoded, through a colour matrix, to 8 bits:
+/// whatever the caller keeps), in the window's task, so that no float copy of the regions is
+/// made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
 /// copy.
 pub fn demosaic_regions<T: Sample>(
     (width, height): (usize, usize),
     order: BayerOrder,
     fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
-    pixels: &(impl Fn([&[f32]; 3], &mut [T]) + Sync),
+    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
     rects: &[Rect],
 ) -> Vec<Image<T>> {
     let spare = Mutex::new(Vec::<Workspace>::new());
@@ -214,7 +214,9 @@ pub fn demosaic_regions<T: Sample>(
                     let mut out = vec![T::default(); r.width * r.height * 3];
                     for (yy, row) in out.chunks_exact_mut(r.width * 3).enumerate() {
                         let at = (yy + dy) * ww + dx;
-                        pixels(planes.map(|p| &p[at..at + r.width]), row);
+                        for (xx, px) in row.chunks_exact_mut(3).enumerate() {
+                            pixel(planes.map(|p| p[at + xx]), px);
+                        }
                     }
                     (k, Image::from_vec(r.width, r.height, 3, out))
                 })
@@ -1056,12 +1058,10 @@ pub(super) mod tests {
     }
 
     /// `demosaic_regions`'s pixels as [`demosaic`] gives them: decoded to linear light.
-    fn decoded(rgb: [&[f32]; 3], out: &mut [f32]) {
+    fn decoded(rgb: [f32; 3], out: &mut [f32]) {
         let decode = &srgb::tabulated().decode;
-        for (x, px) in out.chunks_exact_mut(3).enumerate() {
-            for (o, c) in px.iter_mut().zip(rgb) {
-                *o = decode.at(c[x]);
-            }
+        for (o, v) in out.iter_mut().zip(rgb) {
+            *o = decode.at(v);
         }
     }
 

@@ -154,18 +154,18 @@ impl Filtered {
 
 /// [`malvar`] over the `rect` of a `width`×`height` mosaic of Bayer `order`, row by row in
 /// parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from column `x0` on, as
-/// many as `row` holds (all inside the mosaic; the border is mirrored here), and `pixels`
-/// writes a row of output pixels' three values (each colour's side by side) to their `C`
-/// samples each in `out` (the `rect`'s pixels row by row). What the samples are (encoded,
-/// balanced) is up to `fill`, so that the cheap development reads a frame's integer samples
-/// through a table with no frame-sized float copy. Each row's four filters run over the whole
-/// row, and each pixel takes the two its colour needs.
+/// many as `row` holds (all inside the mosaic; the border is mirrored here), and `pixel`
+/// writes an output pixel's three values to its `C` samples in `out` (the `rect`'s pixels row
+/// by row). What the samples are (encoded, balanced) is up to `fill`, so that the cheap
+/// development reads a frame's integer samples through a table with no frame-sized float
+/// copy. Each row's four filters run over the whole row, and each pixel takes the two its
+/// colour needs.
 pub fn malvar_over<T: Send>(
     (width, height): (usize, usize),
     order: BayerOrder,
     rect: Rect,
     fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
-    pixels: &(impl Fn([&[f32]; 3], &mut [T]) + Sync),
+    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
     out: &mut [T],
 ) {
     const C: usize = 3;
@@ -181,8 +181,8 @@ pub fn malvar_over<T: Send>(
     out.par_chunks_mut(rect.width * C * TASK_ROWS)
         .enumerate()
         .for_each_init(
-            || (Vec::new(), Filtered::default(), <[Vec<f32>; 3]>::default()),
-            |(window, filtered, rgb), (task, chunk)| {
+            || (Vec::new(), Filtered::default()),
+            |(window, filtered), (task, chunk)| {
                 let y0 = rect.y + task * TASK_ROWS;
                 let rows = chunk.len() / (rect.width * C);
                 window.resize((rows + 2 * BORDER) * ww, 0.0);
@@ -210,14 +210,10 @@ pub fn malvar_over<T: Send>(
                         }
                     };
                     let phases = [phase(0), phase(1)];
-                    // Each colour's row: the even columns' plane, the odd columns' over it.
-                    for (c, plane) in rgb.iter_mut().enumerate() {
-                        plane.clear();
-                        plane.extend_from_slice(&phases[0][c][..rect.width]);
-                        let odd = plane.iter_mut().zip(phases[1][c]).skip(1).step_by(2);
-                        odd.for_each(|(d, s)| *d = *s);
+                    for (xx, px) in row.chunks_exact_mut(C).enumerate() {
+                        let [r, g, b] = phases[xx & 1];
+                        pixel([r[xx], g[xx], b[xx]], px);
                     }
-                    pixels(rgb.each_ref().map(|v| &v[..]), row);
                 }
             },
         );
@@ -243,11 +239,7 @@ mod tests {
         let fill = |y: usize, x0: usize, row: &mut [f32]| {
             row.copy_from_slice(&m.data[y * w + x0..][..row.len()]);
         };
-        let pixels = |rgb: [&[f32]; 3], out: &mut [f32]| {
-            for (x, px) in out.chunks_exact_mut(3).enumerate() {
-                px.copy_from_slice(&rgb.map(|c| c[x]));
-            }
-        };
+        let pixel = |rgb: [f32; 3], out: &mut [f32]| out.copy_from_slice(&rgb);
         for (x, y, width, height) in [(0, 0, 5, 3), (1, 1, 1, 1), (30, 20, 7, 9), (3, 10, 20, 17)] {
             let r = Rect {
                 x,
@@ -256,7 +248,7 @@ mod tests {
                 height,
             };
             let mut out = vec![0.0; width * height * 3];
-            malvar_over((w, h), m.order, r, &fill, &pixels, &mut out);
+            malvar_over((w, h), m.order, r, &fill, &pixel, &mut out);
             for yy in 0..height {
                 for xx in 0..width {
                     for c in 0..3 {

@@ -181,11 +181,9 @@ impl Encode8 {
         #[allow(clippy::manual_clamp)]
         let step = v.max(0.0).min(1.0) * Self::STEPS as f32 + 0.5;
         // SAFETY: 0.5 <= step <= STEPS + 0.5, inside i32 (a saturating `as` costs several
-        // instructions a sample), and the table holds STEPS + 1 values.
-        unsafe {
-            let i: i32 = step.to_int_unchecked();
-            *self.0.get_unchecked(i as usize)
-        }
+        // instructions a sample).
+        let i: i32 = unsafe { step.to_int_unchecked() };
+        self.0[i as usize]
     }
 }
 

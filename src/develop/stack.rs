@@ -90,27 +90,23 @@ impl RawStack {
         })
     }
 
-    /// What both developments make of a row of pixels' encoded red, green and blue (each
-    /// colour's values side by side): decoded, through the colour matrix and to 8-bit sRGB,
-    /// three samples a pixel. A row at a time, so that the tables and the matrix are fetched
-    /// once a row and each pixel's steps run inline.
-    fn pixels(&self) -> impl Fn([&[f32]; 3], &mut [u8]) + Sync + '_ {
+    /// What both developments make of a pixel's encoded red, green and blue: decoded, through
+    /// the colour matrix and to 8-bit sRGB.
+    fn pixel(&self) -> impl Fn([f32; 3], &mut [u8]) + Sync + '_ {
         let decode = &srgb::tabulated().decode;
         let to8 = Encode8::table();
-        move |[r, g, b]: [&[f32]; 3], out: &mut [u8]| {
-            for (px, ((r, g), b)) in out.chunks_exact_mut(3).zip(r.iter().zip(g).zip(b)) {
-                let linear = [decode.at(*r), decode.at(*g), decode.at(*b)];
-                let v = self.developer.srgb(linear);
-                px[0] = to8.at(v[0]);
-                px[1] = to8.at(v[1]);
-                px[2] = to8.at(v[2]);
-            }
+        move |rgb: [f32; 3], out: &mut [u8]| {
+            let linear = [decode.at(rgb[0]), decode.at(rgb[1]), decode.at(rgb[2])];
+            let v = self.developer.srgb(linear);
+            out[0] = to8.at(v[0]);
+            out[1] = to8.at(v[1]);
+            out[2] = to8.at(v[2]);
         }
     }
 
     /// The cheap development of frame `i` over each of `rects`, from its encoded rows
     /// ([`RawStack::encoded_rows`]): Malvar–He–Cutler, each pixel through
-    /// [`RawStack::pixels`].
+    /// [`RawStack::pixel`].
     fn cheap_over(
         &self,
         i: usize,
@@ -118,12 +114,12 @@ impl RawStack {
         rects: &[Rect],
     ) -> Vec<Image<u8>> {
         let f = &self.frames[i];
-        let pixels = self.pixels();
+        let pixel = self.pixel();
         rects
             .iter()
             .map(|&r| {
                 let mut out = vec![0u8; r.width * r.height * 3];
-                linear::malvar_over((f.width, f.height), f.order, r, fill, &pixels, &mut out);
+                linear::malvar_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
                 Image::from_vec(r.width, r.height, 3, out)
             })
             .collect()
@@ -178,7 +174,7 @@ impl Develop<u8> for RawStack {
     fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
         let f = &self.frames[i];
         let rows = self.encoded_rows(i)?;
-        let full = demosaic_regions((f.width, f.height), f.order, &rows, &self.pixels(), rects);
+        let full = demosaic_regions((f.width, f.height), f.order, &rows, &self.pixel(), rects);
         let cheap = self.cheap_over(i, &rows, rects);
         Ok(full
             .into_iter()
