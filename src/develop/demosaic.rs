@@ -346,30 +346,7 @@ impl Workspace {
 /// Red, green and blue planes from the `w`-wide mosaic `m` (a strip of the padded frame, whose
 /// first row has the pattern's phase), left in `ws.planes` 0, 3 and 2. Values within `REACH` of
 /// the strip's edges are not meaningful.
-///
-/// With AVX, detected at run time, the passes' loops run eight lanes rather than the
-/// baseline's four: the same operations in the same order (no fused multiply-adds), so the
-/// same values, in about a third less time.
 fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Workspace) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx") {
-        // SAFETY: the CPU has AVX, checked just above.
-        return unsafe { residual_interpolation_avx(m, w, order, ws) };
-    }
-    residual_interpolation_body(m, w, order, ws)
-}
-
-/// `residual_interpolation_body` compiled for AVX.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-unsafe fn residual_interpolation_avx(m: &[f32], w: usize, order: BayerOrder, ws: &mut Workspace) {
-    residual_interpolation_body(m, w, order, ws)
-}
-
-/// [`residual_interpolation`]; it and the passes it calls are inlined, so that each caller
-/// compiles them for its own target features.
-#[inline(always)]
-fn residual_interpolation_body(m: &[f32], w: usize, order: BayerOrder, ws: &mut Workspace) {
     // Where each colour has samples, as 0 or 1 along even rows and along odd ones.
     let sites = |c: usize| {
         [0, 1].map(|y| {
@@ -414,7 +391,6 @@ fn residual_interpolation_body(m: &[f32], w: usize, order: BayerOrder, ws: &mut 
 /// those differences (west, east, north, south, weighted by distance) are weighted by the
 /// inverse square of how much the differences change on that side, and added to the sample.
 /// Only the values `margin` or more inside the edges are computed. `scratch` is overwritten.
-#[inline(always)]
 fn directional_green(
     m: &[f32],
     w: usize,
@@ -491,7 +467,6 @@ fn directional_green(
 }
 
 /// `m` (`w` wide) transposed into `out`.
-#[inline(always)]
 fn transpose(m: &[f32], w: usize, out: &mut [f32]) {
     const BLOCK: usize = 32;
     let h = m.len() / w;
@@ -510,7 +485,6 @@ fn transpose(m: &[f32], w: usize, out: &mut [f32]) {
 /// row's other colour: green estimated at C's samples and C at green's by one-dimensional
 /// minimised-Laplacian residual interpolation. `green_first(y)`: whether row y's green samples
 /// are at even x.
-#[inline(always)]
 fn differences_along_rows(
     m: &[f32],
     w: usize,
@@ -584,7 +558,6 @@ const _: () = assert!(DIR_RADIUS % 2 == 1);
 /// a·guide + b over windows of 2·DIR_RADIUS + 1 pixels (the slope minimising the residuals'
 /// Laplacian), the windows' coefficients averaged with weights as in [`residual_fill`] (floored
 /// at [`DIR_FLOOR`]), plus the residuals interpolated linearly.
-#[inline(always)]
 fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut [f32]) {
     let w = v.len();
     out.fill(0.0);
@@ -605,34 +578,30 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
     let (on_sample, between) = ((2 * HALF + 1) as f32, (2 * HALF + 2) as f32);
     {
         let [sg, sv, sll, slv, sgg, sgv, svv] = stats.each_mut().map(|s| &mut s[..n]);
-        // The samples side by side first, so that the figures' loops run over whole slices.
-        for (s, row) in [(&mut *sg, guide), (&mut *sv, v)] {
-            for (d, p) in s.iter_mut().zip(row[phase..].chunks(2)) {
-                *d = p[0];
-            }
-        }
-        for ((gg, gv), ((vv, g), v)) in sgg
-            .iter_mut()
-            .zip(sgv.iter_mut())
-            .zip(svv.iter_mut().zip(&*sg).zip(&*sv))
+        for (j, (g, v)) in guide[phase..]
+            .iter()
+            .zip(&v[phase..])
+            .step_by(2)
+            .enumerate()
         {
-            *gg = g * g;
-            *gv = g * v;
-            *vv = v * v;
+            sg[j] = *g;
+            sv[j] = *v;
+            sgg[j] = g * g;
+            sgv[j] = g * v;
+            svv[j] = v * v;
         }
-        // The Laplacians where both neighbours are in the row (samples 1 to n - 2), zero at
-        // the ends.
-        let inner = (sll[1..n - 1].iter_mut().zip(&mut slv[1..n - 1]))
-            .zip(sg.windows(3).zip(sv.windows(3)));
-        for ((ll, lv), (g, v)) in inner {
-            let lg = 2.0 * g[1] - g[0] - g[2];
-            let l = 2.0 * v[1] - v[0] - v[2];
-            *ll = lg * lg;
-            *lv = lg * l;
-        }
-        for s in [sll, slv] {
-            s[0] = 0.0;
-            s[n - 1] = 0.0;
+        // The Laplacians where both neighbours are in the row, zero at the ends.
+        sll.fill(0.0);
+        slv.fill(0.0);
+        for j in (2usize.saturating_sub(phase)).div_ceil(2)..n {
+            let x = phase + 2 * j;
+            if x + 2 >= w {
+                break;
+            }
+            let lg = 2.0 * guide[x] - guide[x - 2] - guide[x + 2];
+            let lv = 2.0 * v[x] - v[x - 2] - v[x + 2];
+            sll[j] = lg * lg;
+            slv[j] = lg * lv;
         }
     }
     for s in stats.iter_mut() {
@@ -695,29 +664,18 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
     for x in 0..o.len() {
         o[x] = (sa[x] * g[x] + sb[x]) / su[x];
     }
-    // The residuals at the samples (sample j at x = phase + 2j) inside, side by side, zero
-    // elsewhere.
-    let res = &mut res[..n];
     res.fill(0.0);
-    let (r0, r1) = (DIR_RADIUS, (w - 2 * DIR_RADIUS - phase).div_ceil(2));
-    for (r, (v, o)) in res[r0..r1].iter_mut().zip(
-        v[phase + 2 * r0..][..2 * (r1 - r0)]
-            .chunks_exact(2)
-            .zip(out[phase + 2 * r0..][..2 * (r1 - r0)].chunks_exact(2)),
-    ) {
-        *r = v[0] - o[0];
+    let first = 2 * DIR_RADIUS + phase;
+    for x in (first..w - 2 * DIR_RADIUS).step_by(2) {
+        res[x] = v[x] - out[x];
     }
-    // Pixels 1 to w - 2: each sample's own residual, each pixel between two samples the mean
-    // of theirs, a sample and the pixel after it at a time. With phase 0 the first pixel takes
-    // a residual of zero (the edge's, outside the fit) and stays 0.
-    let pairs = (w - 1 - phase) / 2;
-    let row = &mut out[phase..];
-    for (p, r) in row[..2 * pairs].chunks_exact_mut(2).zip(res.windows(2)) {
-        p[0] += r[0];
-        p[1] += 0.5 * (r[0] + r[1]);
+    // Each sample's own residual, each pixel between two samples the mean of theirs.
+    let first = 2 - phase % 2;
+    for x in (first..w - 1).step_by(2) {
+        out[x] += res[x];
     }
-    if phase + 2 * pairs <= w - 2 {
-        row[2 * pairs] += res[pairs];
+    for x in (3 - first..w - 1).step_by(2) {
+        out[x] += 0.5 * (res[x - 1] + res[x + 1]);
     }
 }
 
@@ -744,7 +702,6 @@ enum Lattice {
 /// are whole planes. Only `fit`'s values `margin` or more inside the edges are computed, from
 /// the guide's `margin - GRID_REACH` or more inside.
 #[allow(clippy::too_many_arguments)]
-#[inline(always)]
 fn residual_fill(
     guide: &[f32],
     m: &[f32],
@@ -987,7 +944,6 @@ fn residual_fill(
 /// Sums of 2·r + 1 neighbours along `row`, into `out` but for `r` at each end. In a fixed
 /// order rather than as a running sum, whose rounding would depend on where it started: strips
 /// must give the whole frame's values exactly.
-#[inline(always)]
 fn window_sum(row: &[f32], out: &mut [f32], r: usize) {
     let Some(n) = row.len().checked_sub(2 * r) else {
         return;
