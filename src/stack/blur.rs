@@ -9,7 +9,6 @@
 use super::image::{Image, Plane, Sample};
 use rayon::prelude::*;
 use std::cell::RefCell;
-use std::ops::Range;
 
 /// Normalised Gaussian taps, radius ⌈3σ⌉.
 pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
@@ -54,34 +53,8 @@ pub fn gaussian_blur_into(src: &Plane, sigma: f32, dst: &mut Plane) {
     debug_assert_eq!(src.channels(), 1);
     let (w, h) = (src.width(), src.height());
     dst.resize(w, h, 1);
-    blur_plane_into(src, dst.data_mut(), &gaussian_half(sigma));
-}
-
-/// Bytes of filtered rows a column tile's ring may hold: half the 48 KiB L1 data cache of
-/// current x86-64 and ARM cores, so the vertical pass reads its 2r+1 rows from L1.
-const RING_BYTES: usize = 24 << 10;
-
-/// [`blur_rows_into`] of a plane, in column tiles when a whole row's ring would not fit in
-/// [`RING_BYTES`] (a σ 5.6 blur of a 400 px row keeps 56 KiB). A tile reads its columns and r
-/// more on each side, so every output pixel sums the same taps in the same order: the same bits.
-pub(crate) fn blur_plane_into(src: &Plane, dst: &mut [f32], half: &[f32]) {
-    let (w, h, r) = (src.width(), src.height(), half.len() - 1);
-    // Whole blocks of the widest `symmetric_sum` block, so tiles add no scalar tails.
-    let tile = (RING_BYTES / (4 * (2 * r + 1)) / 64 * 64).max(64);
-    if tile >= w {
-        return blur_rows_into(dst, w, h, half, || PlaneRows(src));
-    }
-    assert_eq!(dst.len(), w * h, "blur buffer size");
-    par_strips(dst, w, h, |y0, strip| {
-        for x0 in (0..w).step_by(tile) {
-            let x1 = (x0 + tile).min(w);
-            let (a, b) = (x0.saturating_sub(r), (x1 + r).min(w));
-            let span = PlaneSpan { plane: src, a, b };
-            let mut rows = RowBlur::columns(span, b - a, h, half, x0 - a..x1 - a);
-            for (y, out) in (y0..).zip(strip.chunks_exact_mut(w)) {
-                rows.row(y, &mut out[x0..x1]);
-            }
-        }
+    blur_rows_into(dst.data_mut(), w, h, &gaussian_half(sigma), || {
+        PlaneRows(src)
     });
 }
 
@@ -161,20 +134,6 @@ impl Rows for PlaneRows<'_> {
     }
 }
 
-/// Columns `a..b` of a plane's rows.
-struct PlaneSpan<'a> {
-    plane: &'a Plane,
-    a: usize,
-    b: usize,
-}
-
-impl Rows for PlaneSpan<'_> {
-    fn row(&mut self, y: usize, out: &mut [f32]) {
-        let w = self.plane.width();
-        out.copy_from_slice(&self.plane.data()[y * w + self.a..y * w + self.b]);
-    }
-}
-
 /// The luma of an image's rows from `first` on, made as they are read: a source without a
 /// whole luma plane.
 #[derive(Clone, Copy)]
@@ -240,14 +199,13 @@ impl<S: Rows> Rows for Cached<'_, S> {
 /// vertical pass no longer reads are then never asked for.
 pub(crate) struct RowBlur<'k, S> {
     src: S,
+    w: usize,
     h: usize,
-    /// The source's columns this blur outputs (all but a column tile's halo).
-    keep: Range<usize>,
     /// Centre tap, then the taps at distance 1, 2, … (see `gaussian_half`).
     half: &'k [f32],
     /// The source row padded by r replicated samples on each side.
     padded: Vec<f32>,
-    /// Horizontally filtered rows of the kept columns; source row s lives in slot s % (2r+1).
+    /// Horizontally filtered rows; source row s lives in slot s % (2r+1).
     ring: Vec<f32>,
     /// Next source row to filter into the ring; `None` until the first output row fixes it.
     next: Option<usize>,
@@ -260,25 +218,17 @@ pub(crate) struct RowBlur<'k, S> {
 
 impl<'k, S: Rows> RowBlur<'k, S> {
     pub(crate) fn new(src: S, w: usize, h: usize, half: &'k [f32]) -> Self {
-        Self::columns(src, w, h, half, 0..w)
-    }
-
-    /// The blur of the `w`-wide rows `src` makes, output at columns `keep` only: the source's
-    /// edges are replicated, so a column tile's source reaches r columns beyond `keep` inside
-    /// the plane.
-    fn columns(src: S, w: usize, h: usize, half: &'k [f32], keep: Range<usize>) -> Self {
         let r = half.len() - 1;
-        let k = keep.start;
         Self {
             src,
+            w,
             h,
             half,
             padded: vec![0.0; w + 2 * r],
-            ring: vec![0.0; (2 * r + 1) * keep.len()],
-            keep,
+            ring: vec![0.0; (2 * r + 1) * w],
             next: None,
-            hlo: (1..=r).map(|j| k + r - j).collect(),
-            hhi: (1..=r).map(|j| k + r + j).collect(),
+            hlo: (1..=r).map(|j| r - j).collect(),
+            hhi: (1..=r).map(|j| r + j).collect(),
             vlo: vec![0; r],
             vhi: vec![0; r],
         }
@@ -287,9 +237,8 @@ impl<'k, S: Rows> RowBlur<'k, S> {
 
 impl<S: Rows> Rows for RowBlur<'_, S> {
     fn row(&mut self, y: usize, out: &mut [f32]) {
-        let (h, r) = (self.h, self.half.len() - 1);
-        let (w, kw) = (self.padded.len() - 2 * r, self.keep.len());
-        let slot = |s: usize| (s % (2 * r + 1)) * kw;
+        let (w, h, r) = (self.w, self.h, self.half.len() - 1);
+        let slot = |s: usize| (s % (2 * r + 1)) * w;
         let first = y.saturating_sub(r);
         let mut next = self.next.map_or(first, |n| n.max(first));
         while next <= (y + r).min(h - 1) {
@@ -298,9 +247,8 @@ impl<S: Rows> Rows for RowBlur<'_, S> {
             let (first, last) = (p[r], p[r + w - 1]);
             p[..r].fill(first);
             p[r + w..].fill(last);
-            let dst = &mut self.ring[slot(next)..slot(next) + kw];
-            let c = r + self.keep.start;
-            symmetric_sum(dst, p, self.half, c, &self.hlo, &self.hhi);
+            let dst = &mut self.ring[slot(next)..slot(next) + w];
+            symmetric_sum(dst, p, self.half, r, &self.hlo, &self.hhi);
             next += 1;
         }
         self.next = Some(next);
@@ -553,25 +501,6 @@ mod tests {
                     .fold(0.0, f32::max);
                 assert!(err < 1e-5, "{w}x{h} sigma {sigma}: max error {err}");
             }
-        }
-    }
-
-    /// Wide blurs of wide planes run in column tiles; every pixel must keep the bits of the
-    /// blur of whole rows, at the plane's edges and at the tiles' seams (a last tile of 2 and
-    /// of 16 columns, tiles narrower than the kernel's reach).
-    #[test]
-    fn column_tiles_give_the_whole_rows_blur_to_the_bit() {
-        for (w, h, sigma) in [
-            (400, 70, 5.6),
-            (130, 40, 12.0),
-            (200, 9, 9.0),
-            (64, 30, 12.0),
-        ] {
-            let p = Plane::from_fn(w, h, 1, |x, y, _| ((x * 31 + y * 17) % 13) as f32 / 13.0);
-            let half = gaussian_half(sigma);
-            let mut whole = vec![0.0; w * h];
-            blur_rows_into(&mut whole, w, h, &half, || PlaneRows(&p));
-            assert_eq!(gaussian_blur(&p, sigma).data(), whole, "{w}x{h} σ {sigma}");
         }
     }
 

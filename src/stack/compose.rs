@@ -13,7 +13,7 @@
 //!   there it shows the near object defocused and the background through its edge, texture that
 //!   would win the contrast choice over the near object's own clean edge.
 
-use super::blur::{blur_plane_into, gaussian_half, strip_rows, RowBlur, Rows};
+use super::blur::{blur_rows_into, gaussian_half, strip_rows, PlaneRows, RowBlur, Rows};
 use super::image::{luma_of, Image, Plane, Sample};
 use super::order::Order;
 use super::pyramid::{
@@ -92,7 +92,8 @@ impl FrameBuffers {
             if self.mask.len() > 1 {
                 let (r, m0) = (&mut self.reach, &self.mask[0]);
                 let half = gaussian_half(FINE_REACH);
-                blur_plane_into(m0, r.data_mut(), &half);
+                let (w, h) = (r.width(), r.height());
+                blur_rows_into(r.data_mut(), w, h, &half, || PlaneRows(m0));
                 if let Some(order) = order.filter(|o| *o != Order::Unknown) {
                     keep_out_of_nearer(r.data_mut(), labels, order, i, frames);
                 }
