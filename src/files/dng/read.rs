@@ -70,9 +70,8 @@ fn unsupported(path: &Path, reason: String) -> FileError {
 /// Decodes a DNG in memory; the error says what is wrong or unsupported.
 pub fn decode(bytes: &[u8]) -> Parsed<DngFrame> {
     let m = Main::parse(bytes)?;
-    let samples = m.samples(bytes)?;
     Ok(DngFrame {
-        raw: m.raw_frame(&samples),
+        raw: m.raw_frame(bytes)?,
         orientation: m.orientation,
     })
 }
@@ -574,10 +573,32 @@ impl Main {
     /// The samples row by row. The image's bytes must be in the file before anything is
     /// allocated for them, so the allocation is bounded by the file's size.
     fn samples(&self, data: &[u8]) -> Parsed<Vec<u16>> {
-        let t = Tiff {
-            data,
-            big_endian: self.big_endian,
-        };
+        self.held_in(data)?;
+        let w = self.width;
+        let mut out = vec![0u16; w * self.height];
+        self.rows(data, |line, y, x0, n| {
+            self.unpack(line, &mut out[y * w + x0..][..n])
+        })?;
+        Ok(out)
+    }
+
+    /// The file's bytes of the mosaic as they are, row after row, where each sample is a byte
+    /// or a little-endian 16-bit word: no unpacking, and no buffer of samples between the file
+    /// and the frame.
+    fn bytes_as_they_are(&self, data: &[u8]) -> Parsed<Vec<u8>> {
+        self.held_in(data)?;
+        let bytes = (self.bits / 8) as usize;
+        let row = self.width * bytes;
+        let mut out = vec![0u8; row * self.height];
+        self.rows(data, |line, y, x0, n| {
+            out[y * row + x0 * bytes..][..n * bytes].copy_from_slice(&line[..n * bytes])
+        })?;
+        Ok(out)
+    }
+
+    /// An error unless `data` is long enough to hold the mosaic, checked before anything is
+    /// allocated for it.
+    fn held_in(&self, data: &[u8]) -> Parsed<()> {
         let (w, h) = (self.width, self.height);
         if self.row_bytes(w) * h > data.len() {
             return Err(format!(
@@ -587,7 +608,17 @@ impl Main {
                 data.len()
             ));
         }
-        let mut out = vec![0u16; w * h];
+        Ok(())
+    }
+
+    /// Hands `put` each stored row of the mosaic: its bytes (at least enough for its samples),
+    /// its row, its first column and how many samples of it are in the image.
+    fn rows(&self, data: &[u8], mut put: impl FnMut(&[u8], usize, usize, usize)) -> Parsed<()> {
+        let t = Tiff {
+            data,
+            big_endian: self.big_endian,
+        };
+        let (w, h) = (self.width, self.height);
         match &self.chunks {
             Chunks::Strips { rows, offsets } => {
                 let rows = (*rows).max(1);
@@ -606,7 +637,7 @@ impl Main {
                         .bytes(off as usize, rb * n)
                         .map_err(|e| format!("strip {i}: {e}"))?;
                     for (r, line) in strip.chunks_exact(rb).enumerate() {
-                        self.unpack(line, &mut out[(y0 + r) * w..][..w]);
+                        put(line, y0 + r, 0, w);
                     }
                 }
             }
@@ -635,12 +666,12 @@ impl Main {
                         .map_err(|e| format!("tile {i}: {e}"))?;
                     let n = tw.min(w - x0);
                     for (r, line) in tile.chunks_exact(rb).take(tl.min(h - y0)).enumerate() {
-                        self.unpack(line, &mut out[(y0 + r) * w + x0..][..n]);
+                        put(line, y0 + r, x0, n);
                     }
                 }
             }
         }
-        Ok(out)
+        Ok(())
     }
 
     /// One row's samples: bytes, 16-bit words in the file's byte order, or other depths packed
@@ -675,7 +706,7 @@ impl Main {
     /// The raw frame: kept as read where the levels fit one of the camera's packings (8 bits
     /// at white 255, 10 at 1023, 16 at 65535, one black level), else rescaled to 16 bits with
     /// every cell's black level at one code and the white level at 65535.
-    fn raw_frame(&self, samples: &[u16]) -> RawFrame {
+    fn raw_frame(&self, data: &[u8]) -> Parsed<RawFrame> {
         let uniform = self
             .black
             .iter()
@@ -686,9 +717,20 @@ impl Main {
             (16, 65535) if uniform => Some(Packing::Le16),
             _ => None,
         };
+        // A byte a sample, or a little-endian word a sample: the packing's own bytes.
+        let as_they_are = match packing {
+            Some(Packing::Bits8) => self.bits == 8,
+            Some(Packing::Le10 | Packing::Le16) => self.bits == 16 && !self.big_endian,
+            _ => false,
+        };
         let (packing, black, bytes) = match packing {
-            Some(p) => (p, self.black[0] as u32, raw::pack(p, self.width, samples)),
+            Some(p) if as_they_are => (p, self.black[0] as u32, self.bytes_as_they_are(data)?),
+            Some(p) => {
+                let samples = self.samples(data)?;
+                (p, self.black[0] as u32, raw::pack(p, self.width, &samples))
+            }
             None => {
+                let samples = self.samples(data)?;
                 let top = self.black.iter().copied().fold(0.0, f64::max);
                 let to = (top * 65535.0 / self.white as f64).round();
                 let white = self.white as f64;
@@ -706,7 +748,7 @@ impl Main {
                 (Packing::Le16, to as u32, bytes)
             }
         };
-        RawFrame {
+        Ok(RawFrame {
             stride: packing.row_bytes(self.width),
             bytes,
             packing,
@@ -716,6 +758,6 @@ impl Main {
             black_level: black,
             matrix: self.matrix,
             white_balance: self.white_balance,
-        }
+        })
     }
 }

@@ -258,35 +258,41 @@ fn unsupported_dngs_are_refused_naming_the_tag_and_value() {
     }
 }
 
-/// A minimal big-endian TIFF: the pixel data at offset 8, then IFD0 with `entries` (tag,
-/// type, values), values longer than four bytes after it.
-fn tiff_be(entries: &[(u16, u16, Vec<u32>)], data: &[u8]) -> Vec<u8> {
-    let mut out = b"MM\0\x2a".to_vec();
+/// A minimal TIFF in either byte order: the pixel data at offset 8, then IFD0 with `entries`
+/// (tag, type, values), values longer than four bytes after it.
+fn tiff(big_endian: bool, entries: &[(u16, u16, Vec<u32>)], data: &[u8]) -> Vec<u8> {
+    // The low `n` bytes of `v` in the file's order.
+    let word = |v: u32, n: usize| -> Vec<u8> {
+        if big_endian {
+            v.to_be_bytes()[4 - n..].to_vec()
+        } else {
+            v.to_le_bytes()[..n].to_vec()
+        }
+    };
+    let mut out = if big_endian { b"MM\0\x2a" } else { b"II\x2a\0" }.to_vec();
     let ifd = 8 + data.len() + data.len() % 2;
-    out.extend((ifd as u32).to_be_bytes());
+    out.extend(word(ifd as u32, 4));
     out.extend(data);
     out.resize(ifd, 0);
     let mut extra = Vec::new();
     let extra_at = ifd + 2 + 12 * entries.len() + 4;
-    out.extend((entries.len() as u16).to_be_bytes());
+    out.extend(word(entries.len() as u32, 2));
     for (tag, typ, values) in entries {
-        let bytes: Vec<u8> = values
-            .iter()
-            .flat_map(|&v| match typ {
-                1 => vec![v as u8],
-                3 => (v as u16).to_be_bytes().to_vec(),
-                _ => v.to_be_bytes().to_vec(),
-            })
-            .collect();
-        out.extend(tag.to_be_bytes());
-        out.extend(typ.to_be_bytes());
-        out.extend((values.len() as u32).to_be_bytes());
+        let size = match typ {
+            1 => 1,
+            3 => 2,
+            _ => 4,
+        };
+        let bytes: Vec<u8> = values.iter().flat_map(|&v| word(v, size)).collect();
+        out.extend(word(u32::from(*tag), 2));
+        out.extend(word(u32::from(*typ), 2));
+        out.extend(word(values.len() as u32, 4));
         if bytes.len() <= 4 {
             let mut field = bytes.clone();
             field.resize(4, 0);
             out.extend(field);
         } else {
-            out.extend(((extra_at + extra.len()) as u32).to_be_bytes());
+            out.extend(word((extra_at + extra.len()) as u32, 4));
             extra.extend(bytes);
         }
     }
@@ -295,7 +301,7 @@ fn tiff_be(entries: &[(u16, u16, Vec<u32>)], data: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Tags of a 4×4 big-endian CFA DNG with `bits` a sample, BGGR, black 64, white `white`.
+/// Tags of a 4×4 CFA DNG with `bits` a sample, BGGR, black 64, white `white`.
 fn cfa_tags(bits: u32, white: u32) -> Vec<(u16, u16, Vec<u32>)> {
     vec![
         (256, 4, vec![4]),
@@ -332,7 +338,7 @@ fn packed_strips_and_tiles_from_other_writers() {
         (279, 4, vec![12, 12]),
     ]);
     tags.sort_by_key(|t| t.0);
-    let d = read::decode(&tiff_be(&tags, &packed)).expect("12-bit strips");
+    let d = read::decode(&tiff(true, &tags, &packed)).expect("12-bit strips");
     assert_eq!(
         (d.raw.packing, d.raw.order),
         (Packing::Le16, BayerOrder::Bggr)
@@ -365,19 +371,68 @@ fn packed_strips_and_tiles_from_other_writers() {
         (325, 4, vec![8; 4]),
     ]);
     tags.sort_by_key(|t| t.0);
-    let d = read::decode(&tiff_be(&tags, &tiled)).expect("tiles");
+    let d = read::decode(&tiff(true, &tags, &tiled)).expect("tiles");
     assert_eq!((d.raw.packing, d.raw.black_level), (Packing::Le16, 64));
     let got = crate::develop::raw::unpack(Packing::Le16, 4, 4, 0, &d.raw.bytes).expect("16");
     assert_eq!(got, words);
     // A tile past the end of the file.
     let mut tags2 = tags.clone();
     tags2.iter_mut().find(|t| t.0 == 324).unwrap().2 = vec![8, 16, 24, 9000];
-    let e = read::decode(&tiff_be(&tags2, &tiled)).expect_err("outside");
+    let e = read::decode(&tiff(true, &tags2, &tiled)).expect_err("outside");
     assert!(e.contains("tile 3"), "{e}");
     // A header claiming far more pixels than the file holds is refused before allocating.
     let mut huge = tags.clone();
     huge.iter_mut().find(|t| t.0 == 256).unwrap().2 = vec![10_000];
     huge.iter_mut().find(|t| t.0 == 257).unwrap().2 = vec![10_000];
-    let e = read::decode(&tiff_be(&huge, &tiled)).expect_err("huge");
+    let e = read::decode(&tiff(true, &huge, &tiled)).expect_err("huge");
     assert!(e.starts_with("truncated: a 10000x10000 mosaic"), "{e}");
+}
+
+/// 16-bit samples in tiles that overhang the image, little-endian (kept as the file's bytes)
+/// and big-endian (unpacked and packed again): the same frame either way, at both white levels
+/// a camera's packing has.
+#[test]
+fn little_endian_words_are_read_as_big_endian_ones() {
+    // 3×3 tiles over 4×4 samples: the right and bottom tiles hold one column or row each.
+    let words: Vec<u16> = (0..16).map(|i| 70 + i * 61).collect();
+    let (tile, across) = (3, 2);
+    let at = |t: usize, x: usize, y: usize| {
+        let (x, y) = ((t % across) * tile + x, (t / across) * tile + y);
+        (x < 4 && y < 4).then(|| words[y * 4 + x])
+    };
+    let tiles = |big: bool| -> Vec<u8> {
+        (0..across * across)
+            .flat_map(|t| (0..tile * tile).map(move |i| at(t, i % tile, i / tile).unwrap_or(0)))
+            .flat_map(|v| {
+                if big {
+                    v.to_be_bytes()
+                } else {
+                    v.to_le_bytes()
+                }
+            })
+            .collect()
+    };
+    for white in [1023, 65535] {
+        let read = |big: bool| {
+            let mut tags = cfa_tags(16, white);
+            tags.extend([
+                (322, 3, vec![tile as u32]),
+                (323, 3, vec![tile as u32]),
+                (324, 4, vec![8, 26, 44, 62]),
+                (325, 4, vec![18; 4]),
+            ]);
+            tags.sort_by_key(|t| t.0);
+            read::decode(&tiff(big, &tags, &tiles(big))).expect("tiles")
+        };
+        let (le, be) = (read(false), read(true));
+        assert_eq!(le, be, "white {white}");
+        let packing = if white == 1023 {
+            Packing::Le10
+        } else {
+            Packing::Le16
+        };
+        assert_eq!(le.raw.packing, packing);
+        let got = crate::develop::raw::unpack(packing, 4, 4, 0, &le.raw.bytes).expect("unpacks");
+        assert_eq!(got, words, "white {white}");
+    }
 }
