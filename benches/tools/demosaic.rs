@@ -1,7 +1,11 @@
 //! Where the demosaic's error is, and what it costs, in one run, so that two builds can be
 //! compared back to back.
 //!
-//! `demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N]`
+//! `demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N] [--crops DIR]`
+//!
+//! Each figure for three methods: the residual interpolation (the product's full development),
+//! Malvar–He–Cutler on encoded samples (its cheap one) and Ratio Corrected Demosaicing, on
+//! encoded samples and on linear ones (`rcd.rs` beside this file).
 //!
 //! - Simulator frames (the unit tests' three truths, 240×180, RGGB and GBRG), sharp and through
 //!   a 0.5 px lens blur: PSNR over all channels, per channel, and on edges (pixels whose truth
@@ -14,17 +18,24 @@
 //! - False colour and zipper on grey edges, as in the unit tests.
 //! - Time per 3 MP frame (2048×1536 of a simulated scene): median of `--runs` (default 5) on all
 //!   cores and on one. `--tune` applies the product's allocator setting (`malloc::tune`) first.
+//! - With `--crops DIR`: for the first real frame of each directory, the 64×64 block of most
+//!   edge, truth and each method three to a row, 4× enlarged, as a PNG.
 
 use anyhow::{bail, Context, Result};
 use focusd::develop::demosaic::demosaic;
-use focusd::develop::{decode, encode, BayerOrder, Developer, Mosaic, IDENTITY};
+use focusd::develop::linear::malvar_over;
+use focusd::develop::{decode, encode, srgb_tabulated, BayerOrder, Developer, Mosaic, IDENTITY};
 use focusd::files::imageio::load_rgb8;
 use focusd::sim::demosaic_scenes::grey_edge;
 use focusd::sim::{render, SimParams};
 use focusd::stack::internal::gaussian_blur_channels;
+use focusd::stack::Rect;
 use focusd::stack::{fuse, psnr, FuseParams, Image, NoProgress};
+use rcd::rcd;
 use std::path::PathBuf;
 use std::time::Instant;
+
+mod rcd;
 
 fn db(se: f64, n: usize) -> f64 {
     if se == 0.0 {
@@ -91,25 +102,64 @@ impl Errors {
     }
 }
 
-fn developed(m: &Mosaic) -> Image<u8> {
-    encode(&demosaic(m))
+/// A demosaic from a mosaic in linear light to linear RGB.
+type Method = fn(&Mosaic) -> Image<f32>;
+
+/// The demosaics compared.
+const METHODS: [(&str, Method); 4] = [
+    ("RI", demosaic),
+    ("Malvar", malvar_encoded),
+    ("RCD", |m| rcd(m, true)),
+    ("RCD linear", |m| rcd(m, false)),
+];
+
+/// Malvar–He–Cutler on encoded samples, as the cheap development runs it.
+fn malvar_encoded(m: &Mosaic) -> Image<f32> {
+    let curves = srgb_tabulated();
+    let (w, h) = (m.width, m.height);
+    let mut out = vec![0.0f32; w * h * 3];
+    let fill = |y: usize, x0: usize, row: &mut [f32]| {
+        for (v, s) in row.iter_mut().zip(&m.data[y * w + x0..]) {
+            *v = curves.encode.at(*s);
+        }
+    };
+    let pixel = |rgb: [f32; 3], px: &mut [f32]| {
+        for (o, v) in px.iter_mut().zip(rgb) {
+            *o = curves.decode.at(v);
+        }
+    };
+    let all = Rect {
+        x: 0,
+        y: 0,
+        width: w,
+        height: h,
+    };
+    malvar_over((w, h), m.order, all, &fill, &pixel, &mut out);
+    Image::from_vec(w, h, 3, out)
 }
 
 fn simulated() {
     for sigma in [0.0f32, 0.5] {
-        let mut total = Errors::default();
+        let mut total = [Errors::default(); METHODS.len()];
         for seed in [3u64, 11, 29] {
             let truth = render(&SimParams::demosaic_scene(seed)).truth;
             let lin = gaussian_blur_channels(&decode(&truth), sigma);
             let truth = encode(&lin);
             for order in [BayerOrder::Rggb, BayerOrder::Gbrg] {
-                let out = developed(&Mosaic::sample(&lin, order));
-                let e = Errors::of(&out, &truth, 2);
-                total.add(&e);
-                println!("sim seed {seed} blur {sigma} {order:?}: {}", e.line());
+                let m = Mosaic::sample(&lin, order);
+                for ((name, f), t) in METHODS.iter().zip(&mut total) {
+                    let e = Errors::of(&encode(&f(&m)), &truth, 2);
+                    t.add(&e);
+                    println!(
+                        "sim seed {seed} blur {sigma} {order:?} {name}: {}",
+                        e.line()
+                    );
+                }
             }
         }
-        println!("sim blur {sigma} pooled: {}", total.line());
+        for ((name, _), t) in METHODS.iter().zip(&total) {
+            println!("sim blur {sigma} pooled {name}: {}", t.line());
+        }
     }
 }
 
@@ -121,15 +171,19 @@ fn real(dirs: &[PathBuf]) -> Result<()> {
             .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
             .collect();
         paths.sort();
-        let mut total = Errors::default();
+        let mut total = [Errors::default(); METHODS.len()];
         for p in &paths {
             let truth = load_rgb8(p)?;
-            let out = developed(&Mosaic::sample(&decode(&truth), BayerOrder::Rggb));
-            let e = Errors::of(&out, &truth, 4);
-            total.add(&e);
-            println!("real {}: {}", p.display(), e.line());
+            let m = Mosaic::sample(&decode(&truth), BayerOrder::Rggb);
+            for ((name, f), t) in METHODS.iter().zip(&mut total) {
+                let e = Errors::of(&encode(&f(&m)), &truth, 4);
+                t.add(&e);
+                println!("real {} {name}: {}", p.display(), e.line());
+            }
         }
-        println!("real {} pooled: {}", dir.display(), total.line());
+        for ((name, _), t) in METHODS.iter().zip(&total) {
+            println!("real {} pooled {name}: {}", dir.display(), t.line());
+        }
     }
     Ok(())
 }
@@ -195,9 +249,18 @@ fn fused() {
 }
 
 fn edges() {
+    for (name, f) in METHODS {
+        edges_of(name, f);
+    }
+}
+
+fn edges_of(name: &str, f: Method) {
     for width in [1.0f32, 3.0] {
         for slope in [0.0f32, 0.2, 1.0] {
-            let out = developed(&Mosaic::sample(&grey_edge(slope, width), BayerOrder::Rggb));
+            let out = encode(&f(&Mosaic::sample(
+                &grey_edge(slope, width),
+                BayerOrder::Rggb,
+            )));
             let fringe = out
                 .data()
                 .chunks_exact(3)
@@ -217,7 +280,7 @@ fn edges() {
             } else {
                 String::new()
             };
-            println!("edge {width} px slope {slope}: false colour {fringe}{z}");
+            println!("{name} edge {width} px slope {slope}: false colour {fringe}{z}");
         }
     }
 }
@@ -264,21 +327,93 @@ fn timing(runs: usize) {
             mid(t.iter().map(|p| p.1).collect()),
         )
     };
-    let (all, _) = median(&|| drop(demosaic(&m)));
     let one_pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .expect("pool");
-    let (one, one_cpu) = median(&|| one_pool.install(|| drop(demosaic(&m))));
-    println!(
-        "time per 3 MP frame: {all:.3} s on {} threads, {one:.3} s on one ({one_cpu:.3} s CPU)",
-        rayon::current_num_threads()
-    );
+    for (name, f) in METHODS {
+        let (all, _) = median(&|| drop(f(&m)));
+        let (one, one_cpu) = median(&|| one_pool.install(|| drop(f(&m))));
+        println!(
+            "{name} time per 3 MP frame: {all:.3} s on {} threads, {one:.3} s on one ({one_cpu:.3} \
+             s CPU)",
+            rayon::current_num_threads()
+        );
+    }
+}
+
+/// For the first real frame of each of `dirs`, the 64×64 block (on an 8 px grid) with the most
+/// edge pixels, truth then each method three to a row, enlarged 4×, into `out/<dir name>.png`.
+fn crops(dirs: &[PathBuf], out: &std::path::Path) -> Result<()> {
+    const SIDE: usize = 64;
+    const ZOOM: usize = 4;
+    std::fs::create_dir_all(out)?;
+    for dir in dirs {
+        let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+            .collect();
+        paths.sort();
+        let Some(first) = paths.first() else {
+            continue;
+        };
+        let truth = load_rgb8(first)?;
+        let (w, h) = (truth.width(), truth.height());
+        let luma = truth.luma();
+        let edge = |x: usize, y: usize| {
+            let gx = luma.at(x + 1, y, 0) - luma.at(x - 1, y, 0);
+            let gy = luma.at(x, y + 1, 0) - luma.at(x, y - 1, 0);
+            (gx * gx + gy * gy).sqrt() / 2.0 > 16.0 / 255.0
+        };
+        // Edge pixels per 8×8 cell, then per block of 8×8 cells.
+        let (cw, ch) = (w / 8 - 1, h / 8 - 1);
+        let mut cells = vec![0usize; cw * ch];
+        for y in 8..ch * 8 {
+            for x in 8..cw * 8 {
+                cells[y / 8 * cw + x / 8] += usize::from(edge(x, y));
+            }
+        }
+        let cells_per = SIDE / 8;
+        let mut best = (0, 8, 8);
+        for by in 1..ch.saturating_sub(cells_per) {
+            for bx in 1..cw.saturating_sub(cells_per) {
+                let n: usize = (by..by + cells_per)
+                    .map(|j| cells[j * cw + bx..][..cells_per].iter().sum::<usize>())
+                    .sum();
+                best = best.max((n, 8 * bx, 8 * by));
+            }
+        }
+        let (_, bx, by) = best;
+        let m = Mosaic::sample(&decode(&truth), BayerOrder::Rggb);
+        let mut shown = vec![truth.clone()];
+        shown.extend(METHODS.iter().map(|(_, f)| encode(&f(&m))));
+        // Three to a row, the last row's gaps black.
+        let side = SIDE * ZOOM;
+        let rows = shown.len().div_ceil(3);
+        let sheet = Image::from_fn(3 * side, rows * side, 3, |x, y, c| {
+            shown
+                .get(y / side * 3 + x / side)
+                .map_or(0, |s| s.at(bx + x % side / ZOOM, by + y % side / ZOOM, c))
+        });
+        let name = dir
+            .file_name()
+            .map_or("frame".into(), |n| n.to_string_lossy());
+        let path = out.join(format!("{name}.png"));
+        let bytes = focusd::files::imageio::encode(&sheet, image::ImageFormat::Png, 100)?;
+        std::fs::write(&path, bytes)?;
+        println!(
+            "crop of {} at ({bx}, {by}): {}",
+            first.display(),
+            path.display()
+        );
+    }
+    Ok(())
 }
 
 fn main() -> Result<()> {
     let mut real_dirs = Vec::new();
     let (mut fuse_too, mut runs) = (true, 5usize);
+    let mut crop_dir = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -286,8 +421,14 @@ fn main() -> Result<()> {
             "--no-fuse" => fuse_too = false,
             "--tune" => focusd::base::malloc::tune(),
             "--runs" => runs = args.next().context("--runs N")?.parse()?,
-            _ => bail!("usage: demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N]"),
+            "--crops" => crop_dir = Some(PathBuf::from(args.next().context("--crops DIR")?)),
+            _ => bail!(
+                "usage: demosaic [--real DIR]... [--no-fuse] [--tune] [--runs N] [--crops DIR]"
+            ),
         }
+    }
+    if let Some(dir) = &crop_dir {
+        crops(&real_dirs, dir)?;
     }
     simulated();
     real(&real_dirs)?;

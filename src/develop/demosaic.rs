@@ -143,7 +143,7 @@ fn mirror(i: usize, n: usize) -> usize {
 
 /// The sample of a line of `n` that index `i`, at most `PAD` beyond either end, stands for: the
 /// border [`Padded`] gives the demosaic, for filters that mirror the mosaic themselves.
-pub(super) fn mirrored(i: isize, n: usize) -> usize {
+pub fn mirrored(i: isize, n: usize) -> usize {
     mirror((i + PAD as isize) as usize, n)
 }
 

@@ -136,7 +136,9 @@ pub fn grey_world(frames: &[&Mosaic]) -> [f32; 3] {
     [gain(0), 1.0, gain(2)]
 }
 
-pub use crate::stack::srgb::{decode as srgb_decode, encode as srgb_encode};
+pub use crate::stack::srgb::{
+    decode as srgb_decode, encode as srgb_encode, tabulated as srgb_tabulated,
+};
 
 /// 8-bit sRGB to linear RGB: the inverse of [`encode`], for truths and frames made as pictures
 /// that a test or measurement mosaics as a sensor would see them.
