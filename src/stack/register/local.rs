@@ -87,7 +87,7 @@ const FINE: f32 = 2.0;
 /// defocus fakes motion of about a working-level pixel (seed 25 of the 6 px parallax stacks:
 /// a far frame's field of 1 px over fine dots that do not move), while parallax that matters
 /// moves a near object by more (seed 23: its finely grained near object by 3 px).
-const WIDE: f32 = 3.0;
+const WIDE: f32 = 2.0;
 /// Where fine texture dominates, the frame keeps no field where the working level is aliased:
 /// its high-passed plane minus its reduction's expanded carries more than this multiple of its
 /// own energy (pooled), which only aliases made by the reduction add (a checkerboard near the
