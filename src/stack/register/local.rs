@@ -84,7 +84,7 @@ const MIN_MOTION_PX: f64 = 0.3;
 /// hundreds; a near object's fine grain, whose outline the flow follows truly, also several.
 const FINE: f32 = 2.0;
 /// Where fine texture dominates, the dead zone is this many times [`DEAD`]: a change of its
-/// defocus fakes motion of about a working-level pixel (seed 25 of the 6 px parallax stacks:
+/// defocus fakes motion of about a pixel (seed 25 of the 6 px parallax stacks:
 /// a far frame's field of 1 px over fine dots that do not move), while parallax that matters
 /// moves a near object by more (seed 23: its finely grained near object by 3 px).
 const WIDE: f32 = 2.0;
