@@ -22,6 +22,12 @@
 //! [`MIN_MOTION_PX`] is dropped whole: on a stack without parallax the affine stands alone, and
 //! the output is what it was without local registration.
 //!
+//! Texture finer than the working level can hold reaches it attenuated, and a change of its
+//! defocus between neighbours, or its aliases, which move and change with a sub-pixel shift,
+//! the flow reads as motion and the trust test passes. Where the next finer level is at hand,
+//! a frame's field is held to a wider dead zone where such texture dominates it ([`FINE`]), and
+//! dropped where the working level itself is aliased there ([`ALIASED`]).
+//!
 //! Memory: the planes are the registration's own detection level; a side of the stack keeps one
 //! high-passed pyramid and one chained flow at a time; each field is 8 bytes per level pixel.
 
@@ -71,6 +77,23 @@ const DEAD: (f32, f32) = (0.5, 1.0);
 /// A field whose 99th percentile displacement (full-resolution pixels) is below this is
 /// dropped: the affine stands alone, and the output is what it was without local registration.
 const MIN_MOTION_PX: f64 = 0.3;
+/// Texture too fine for the working level dominates a frame where its energy in the finer
+/// level's Laplacian band, pooled over the window, exceeds this multiple of its pooled
+/// high-passed energy at the working level. Ordinary sharp texture, its energy spread over the
+/// octaves, reaches a few; a checkerboard at the working level's Nyquist limit tens to
+/// hundreds; a near object's fine grain, whose outline the flow follows truly, also several.
+const FINE: f32 = 2.0;
+/// Where fine texture dominates, the dead zone is this many times [`DEAD`]: a change of its
+/// defocus fakes motion of about a pixel (seed 25 of the 6 px parallax stacks:
+/// a far frame's field of 1 px over fine dots that do not move), while parallax that matters
+/// moves a near object by more (seed 23: its finely grained near object by 3 px).
+const WIDE: f32 = 2.0;
+/// Where fine texture dominates, the frame keeps no field where the working level is aliased:
+/// its high-passed plane minus its reduction's expanded carries more than this multiple of its
+/// own energy (pooled), which only aliases made by the reduction add (a checkerboard near the
+/// working level's Nyquist limit reads 2–2.6; fine grain and dots 0.5–1.0). There the flow's
+/// coarser levels start from aliases.
+const ALIASED: f32 = 1.2;
 
 /// A displacement per pixel of a working-level grid, in working-level pixels: reference content
 /// at (x, y) appears at (x + dx, y + dy) in the frame warped by its global affine.
@@ -144,18 +167,45 @@ impl Flow {
     }
 }
 
-/// A frame's level plane warped onto the reference's grid by its affine (level coordinates);
-/// NaN outside the frame.
-pub struct Warped(Plane);
+/// A frame's level plane warped onto the reference's grid by its affine (level coordinates),
+/// NaN outside the frame; and, where the next finer level is at hand, the [`unrepresented`]
+/// energy per level pixel, warped alike.
+pub struct Warped(Plane, Option<Plane>);
 
 impl Warped {
-    /// `plane` is the frame at pyramid level `k`, `ref_to_frame` its full-resolution affine.
-    pub fn new(plane: &Plane, ref_to_frame: &Affine, k: usize) -> Warped {
+    /// `plane` is the frame at pyramid level `k`, `finer` the frame at level `k − 1` where kept
+    /// (`plane` its reduction), `ref_to_frame` its full-resolution affine.
+    pub fn new(plane: &Plane, finer: Option<&Plane>, ref_to_frame: &Affine, k: usize) -> Warped {
         let a = to_level(ref_to_frame, k);
         let (w, h) = (plane.width(), plane.height());
-        let data = resample(w, h, plane, |x, y| a.apply(x, y));
-        Warped(Plane::from_vec(w, h, 1, data))
+        let warp = |p: &Plane| Plane::from_vec(w, h, 1, resample(w, h, p, |x, y| a.apply(x, y)));
+        Warped(warp(plane), finer.map(|f| warp(&unrepresented(f, plane))))
     }
+}
+
+/// Per pixel of `coarse` (the reduction of `fine`), the mean squared Laplacian band of `fine`
+/// (`fine` minus `coarse` expanded) over the 2×2 pixels it covers: texture too fine for
+/// `coarse`, which holds it only attenuated and aliased.
+fn unrepresented(fine: &Plane, coarse: &Plane) -> Plane {
+    let (fw, fh) = (fine.width(), fine.height());
+    let w = coarse.width();
+    let up = expand(coarse, fw, fh);
+    let (f, u) = (fine.data(), up.data());
+    let data = (0..w * coarse.height())
+        .into_par_iter()
+        .map(|i| {
+            let (x, y) = (2 * (i % w), 2 * (i / w));
+            let (mut sum, mut n) = (0.0, 0.0);
+            for (x, y) in [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)] {
+                if x < fw && y < fh {
+                    let e = f[y * fw + x] - u[y * fw + x];
+                    (sum, n) = (sum + e * e, n + 1.0);
+                }
+            }
+            sum / n
+        })
+        .collect();
+    Plane::from_vec(w, coarse.height(), 1, data)
 }
 
 /// Where `p` is defined (1, else 0), and `p` with NaN (outside the frame) as 0: filtered
@@ -244,6 +294,34 @@ impl Pyramid {
             pool(&data, p.width(), p.height())
         })
     }
+
+    /// The working level's high-passed plane minus the next level's expanded, squared and
+    /// pooled: at most about the working level's [`Pyramid::energy`] where the reduction holds
+    /// only what the working level does, more where it adds aliases. Zero without a next level.
+    fn aliases(&self) -> Vec<f32> {
+        let p = &self.levels[0];
+        let (w, h) = (p.width(), p.height());
+        let Some(next) = self.levels.get(1) else {
+            return vec![0.0; w * h];
+        };
+        let next = Plane::from_vec(
+            next.width(),
+            next.height(),
+            1,
+            next.data()
+                .iter()
+                .map(|v| if v.is_nan() { 0.0 } else { *v })
+                .collect(),
+        );
+        let up = expand(&next, w, h);
+        let data: Vec<f32> = p
+            .data()
+            .iter()
+            .zip(up.data())
+            .map(|(v, u)| if v.is_nan() { 0.0 } else { (v - u) * (v - u) })
+            .collect();
+        pool(&data, w, h)
+    }
 }
 
 /// The chain of local fields of one side of the reference: call [`Chain::next`] with each frame
@@ -261,7 +339,7 @@ impl Chain {
     /// The chains of the two sides of the reference, both starting at its level plane (not
     /// warped), whose pyramid they share.
     pub fn both(reference: &Plane, level: usize) -> [Chain; 2] {
-        let start = Pyramid::new(&Warped::new(reference, &Affine::IDENTITY, 0).0);
+        let start = Pyramid::new(&Warped::new(reference, None, &Affine::IDENTITY, 0).0);
         let (w, h) = (reference.width(), reference.height());
         [0, 1].map(|_| Chain {
             prev: Pyramid::with_levels(Arc::clone(&start.levels)),
@@ -287,6 +365,33 @@ impl Chain {
         if self.sure.iter().all(|&s| s == 0.0) {
             return None;
         }
+        // Per pixel, how much wider than `DEAD` this frame's dead zone is: 1, [`WIDE`] where
+        // its texture is too fine for the working level, 0 (no field) where the working level
+        // is also aliased there (the chain's flow and sureness go on unchanged for the frames
+        // beyond).
+        let widen = frame.1.map(|u| {
+            let (w, h) = (u.width(), u.height());
+            let data: Vec<f32> = u
+                .data()
+                .iter()
+                .map(|v| if v.is_nan() { 0.0 } else { *v })
+                .collect();
+            let energy = self.prev.energy();
+            let fine: Vec<bool> = pool(&data, w, h)
+                .iter()
+                .zip(energy)
+                .map(|(u, e)| *u > FINE * e)
+                .collect();
+            let aliases = fine.contains(&true).then(|| self.prev.aliases());
+            fine.iter()
+                .enumerate()
+                .map(|(i, &fine)| match &aliases {
+                    Some(a) if fine && a[i] > ALIASED * energy[i] => 0.0,
+                    Some(_) if fine => WIDE,
+                    _ => 1.0,
+                })
+                .collect::<Vec<f32>>()
+        });
         let s = (1u64 << self.level) as f32;
         // Frame point = A(x + g) = A(x) + L·g for the affine's linear part L.
         let [[l00, l01, _], [l10, l11, _]] = ref_to_frame.0;
@@ -297,9 +402,15 @@ impl Chain {
             .iter()
             .zip(&self.flow.dy)
             .zip(&self.sure)
-            .map(|((&x, &y), &sure)| {
+            .enumerate()
+            .map(|(i, ((&x, &y), &sure))| {
+                let m = widen.as_ref().map_or(1.0, |v| v[i]);
                 let (x, y) = (s * sure * x, s * sure * y);
-                let k = ((x.hypot(y) - DEAD.0) / (DEAD.1 - DEAD.0)).clamp(0.0, 1.0);
+                let k = if m > 0.0 {
+                    ((x.hypot(y) - m * DEAD.0) / (m * (DEAD.1 - DEAD.0))).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
                 let (x, y) = (k * x, k * y);
                 (l00 * x + l01 * y, l10 * x + l11 * y)
             })
@@ -639,6 +750,35 @@ mod tests {
         }
         let (still, _) = flow(&a, &a);
         assert!(still.dx.iter().chain(&still.dy).all(|d| d.abs() < 1e-3));
+    }
+
+    /// A frame moved only by its affine, with a checkerboard of period 4.4 px (2.2 at the
+    /// working level, near its Nyquist limit) sharp in it and slightly defocused in the
+    /// reference: the flow reads the checkerboard's aliases as motion of about 3 px, and with
+    /// the finer level at hand the frame keeps no field.
+    #[test]
+    fn texture_too_fine_for_the_working_level_keeps_no_field() {
+        let checker = |x: f64, y: f64| {
+            let p = std::f64::consts::TAU / 4.4;
+            let c = ((x * p).sin() * (y * p).sin()).signum();
+            (0.5 + 0.2 * c + 0.1 * (x * 0.05 + y * 0.03).sin()) as f32
+        };
+        let (w, h, (sx, sy)) = (320, 240, (1.3, -0.7));
+        let sharp = Plane::from_fn(w, h, 1, |x, y, _| checker(x as f64 - sx, y as f64 - sy));
+        let still = Plane::from_fn(w, h, 1, |x, y, _| checker(x as f64, y as f64));
+        let reference = reduce(&gaussian_blur(&still, 1.0));
+        let shift = Affine([[1.0, 0.0, sx], [0.0, 1.0, sy]]);
+        let field = |finer: Option<&Plane>| {
+            let [mut chain, _] = Chain::both(&reference, 1);
+            let frame = Warped::new(&reduce(&sharp), finer, &shift, 1);
+            chain.next(frame, &shift).map(|f| f.reach(0.99))
+        };
+        let fooled = field(None);
+        assert!(
+            fooled.is_some_and(|r| r > 1.0),
+            "without the finer level the flow should read the aliases as motion: {fooled:?}"
+        );
+        assert_eq!(field(Some(&sharp)), None);
     }
 
     /// A step reports the share of pixels still moving: all of a shifted pair's first step,

@@ -331,6 +331,11 @@ pub fn register_with<T: Sample>(
     }
     if p.local {
         let plane = |i: usize| frames[i].levels.get(near.min(frames[i].levels.last()));
+        // The level above, where kept: it shows texture too fine for the working level.
+        let finer = |i: usize| {
+            let (l, k) = (&frames[i].levels, near.min(frames[i].levels.last()));
+            (k > l.first).then(|| l.get(k - 1))
+        };
         let sides = [
             (0..reference).rev().collect::<Vec<_>>(),
             (reference + 1..n).collect(),
@@ -348,7 +353,7 @@ pub fn register_with<T: Sample>(
                     matched &= matches!(reg.how[i], Placement::Direct | Placement::Chained { .. });
                     let a = &reg.ref_to_frame[i];
                     let field = matched
-                        .then(|| chain.next(local::Warped::new(plane(i), a, k), a))
+                        .then(|| chain.next(local::Warped::new(plane(i), finer(i), a, k), a))
                         .flatten();
                     step()?;
                     fields.push((i, field));
