@@ -168,19 +168,41 @@ impl Flow {
 }
 
 /// A frame's level plane warped onto the reference's grid by its affine (level coordinates),
-/// NaN outside the frame; and, where the next finer level is at hand, the [`unrepresented`]
-/// energy per level pixel, warped alike.
-pub struct Warped(Plane, Option<Plane>);
+/// NaN outside the frame; and, where the next finer level is at hand, what the
+/// [`unrepresented`] energy is made from, made only for a frame that may keep a field.
+pub struct Warped<'a> {
+    plane: Plane,
+    /// The frame at the next finer level and at this one, and the level affine.
+    finer: Option<(&'a Plane, &'a Plane, Affine)>,
+}
 
-impl Warped {
+impl<'a> Warped<'a> {
     /// `plane` is the frame at pyramid level `k`, `finer` the frame at level `k − 1` where kept
     /// (`plane` its reduction), `ref_to_frame` its full-resolution affine.
-    pub fn new(plane: &Plane, finer: Option<&Plane>, ref_to_frame: &Affine, k: usize) -> Warped {
+    pub fn new(
+        plane: &'a Plane,
+        finer: Option<&'a Plane>,
+        ref_to_frame: &Affine,
+        k: usize,
+    ) -> Warped<'a> {
         let a = to_level(ref_to_frame, k);
-        let (w, h) = (plane.width(), plane.height());
-        let warp = |p: &Plane| Plane::from_vec(w, h, 1, resample(w, h, p, |x, y| a.apply(x, y)));
-        Warped(warp(plane), finer.map(|f| warp(&unrepresented(f, plane))))
+        Warped {
+            plane: warp_level(plane, &a),
+            finer: finer.map(|f| (f, plane, a)),
+        }
     }
+
+    /// The [`unrepresented`] energy per level pixel, warped as the plane is.
+    fn unrepresented(&self) -> Option<Plane> {
+        let (fine, coarse, a) = self.finer?;
+        Some(warp_level(&unrepresented(fine, coarse), &a))
+    }
+}
+
+/// `p` (a level plane) resampled onto the reference's grid through the level affine `a`.
+fn warp_level(p: &Plane, a: &Affine) -> Plane {
+    let (w, h) = (p.width(), p.height());
+    Plane::from_vec(w, h, 1, resample(w, h, p, |x, y| a.apply(x, y)))
 }
 
 /// Per pixel of `coarse` (the reduction of `fine`), the mean squared Laplacian band of `fine`
@@ -211,14 +233,15 @@ fn unrepresented(fine: &Plane, coarse: &Plane) -> Plane {
 /// Where `p` is defined (1, else 0), and `p` with NaN (outside the frame) as 0: filtered
 /// alike, their ratio is the filter of the defined pixels alone.
 fn masked(p: &Plane) -> (Plane, Plane) {
-    let plane = |f: &dyn Fn(f32) -> f32| {
-        let data = p
-            .data()
-            .iter()
-            .map(|&v| if v.is_nan() { 0.0 } else { f(v) });
-        Plane::from_vec(p.width(), p.height(), 1, data.collect())
-    };
-    (plane(&|_| 1.0), plane(&|v| v))
+    let valid = p.data().iter().map(|v| if v.is_nan() { 0.0 } else { 1.0 });
+    let valid = Plane::from_vec(p.width(), p.height(), 1, valid.collect());
+    (valid, filled(p))
+}
+
+/// `p` with NaN (outside the frame) as 0.
+fn filled(p: &Plane) -> Plane {
+    let data = p.data().iter().map(|&v| if v.is_nan() { 0.0 } else { v });
+    Plane::from_vec(p.width(), p.height(), 1, data.collect())
 }
 
 /// `p` minus its blur; NaN (outside the frame) stays NaN and does not leak into the blur.
@@ -304,16 +327,7 @@ impl Pyramid {
         let Some(next) = self.levels.get(1) else {
             return vec![0.0; w * h];
         };
-        let next = Plane::from_vec(
-            next.width(),
-            next.height(),
-            1,
-            next.data()
-                .iter()
-                .map(|v| if v.is_nan() { 0.0 } else { *v })
-                .collect(),
-        );
-        let up = expand(&next, w, h);
+        let up = expand(&filled(next), w, h);
         let data: Vec<f32> = p
             .data()
             .iter()
@@ -339,7 +353,7 @@ impl Chain {
     /// The chains of the two sides of the reference, both starting at its level plane (not
     /// warped), whose pyramid they share.
     pub fn both(reference: &Plane, level: usize) -> [Chain; 2] {
-        let start = Pyramid::new(&Warped::new(reference, None, &Affine::IDENTITY, 0).0);
+        let start = Pyramid::new(&Warped::new(reference, None, &Affine::IDENTITY, 0).plane);
         let (w, h) = (reference.width(), reference.height());
         [0, 1].map(|_| Chain {
             prev: Pyramid::with_levels(Arc::clone(&start.levels)),
@@ -352,7 +366,7 @@ impl Chain {
     /// The offset field of the next frame outwards (`ref_to_frame` its global affine, full
     /// resolution), or None where it stays within [`MIN_MOTION_PX`] of the affine.
     pub fn next(&mut self, frame: Warped, ref_to_frame: &Affine) -> Option<OffsetField> {
-        let next = Pyramid::new(&frame.0);
+        let next = Pyramid::new(&frame.plane);
         let (d, sure) = flow(&self.prev, &next);
         self.flow = self.flow.chain(&d);
         self.sure
@@ -369,15 +383,9 @@ impl Chain {
         // its texture is too fine for the working level, 0 (no field) where the working level
         // is also aliased there (the chain's flow and sureness go on unchanged for the frames
         // beyond).
-        let widen = frame.1.map(|u| {
-            let (w, h) = (u.width(), u.height());
-            let data: Vec<f32> = u
-                .data()
-                .iter()
-                .map(|v| if v.is_nan() { 0.0 } else { *v })
-                .collect();
+        let widen = frame.unrepresented().map(|u| {
             let energy = self.prev.energy();
-            let fine: Vec<bool> = pool(&data, w, h)
+            let fine: Vec<bool> = pool(filled(&u).data(), u.width(), u.height())
                 .iter()
                 .zip(energy)
                 .map(|(u, e)| *u > FINE * e)
@@ -770,7 +778,8 @@ mod tests {
         let shift = Affine([[1.0, 0.0, sx], [0.0, 1.0, sy]]);
         let field = |finer: Option<&Plane>| {
             let [mut chain, _] = Chain::both(&reference, 1);
-            let frame = Warped::new(&reduce(&sharp), finer, &shift, 1);
+            let coarse = reduce(&sharp);
+            let frame = Warped::new(&coarse, finer, &shift, 1);
             chain.next(frame, &shift).map(|f| f.reach(0.99))
         };
         let fooled = field(None);
