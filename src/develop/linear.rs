@@ -1,8 +1,17 @@
-//! Linear demosaics: Malvar, He and Cutler's gradient-corrected filters and bilinear
-//! interpolation. Far cheaper than the residual interpolation of [`super::demosaic`] and a few
-//! dB worse, but at full size: Malvar–He–Cutler on encoded samples ([`malvar_over`]) is the
-//! cheap development a stack is registered and labelled on, fine detail and all; both are the
-//! baselines the demosaic's tests compare with.
+//! Cheap demosaics: Malvar, He and Cutler's gradient-corrected linear filters and bilinear
+//! interpolation, the baselines the demosaic's tests compare with, and the cheap development a
+//! stack is registered and labelled on ([`cheap_over`]), far cheaper than the residual
+//! interpolation of [`super::demosaic`] and at full size, fine detail and all.
+//!
+//! The cheap development is Malvar–He–Cutler's red and blue with a directional green at the red
+//! and blue samples: the Hamilton–Adams estimates along the row and down the column, weighted
+//! by how little each direction changes ([`directional_green`]). The labels follow the fine
+//! detail of luma, mostly green, and Malvar–He–Cutler's green, the same across an edge as along
+//! it, is the furthest of its colours from the full development's. With the directional green
+//! the labels come closer to those made on the full development: on real stacks mosaicked the
+//! fused picture came out 0.17 dB below to 0.02 dB above developing every frame in full, where
+//! with Malvar–He–Cutler's own green it was 0.14–0.33 dB below, for a tenth more of the cheap
+//! development's work (`benches/tools/lazy_develop.rs`).
 
 use super::demosaic::mirrored;
 #[cfg(test)]
@@ -67,8 +76,7 @@ pub fn bilinear(m: &Mosaic) -> Image<f32> {
 /// Malvar, He and Cutler's gradient-corrected linear interpolation ("High-quality linear
 /// interpolation for demosaicing of Bayer-patterned color images", ICASSP 2004), what
 /// focusd used before residual interpolation, over a whole mosaic in its own encoding, pixel
-/// by pixel from the paper's filters: the baseline the demosaic's tests compare with, and what
-/// [`malvar_over`] must give exactly.
+/// by pixel from the paper's filters: the baseline the demosaic's tests compare with.
 #[cfg(test)]
 pub fn malvar(m: &Mosaic) -> Image<f32> {
     let p = Padded::new(m, |v| v);
@@ -104,13 +112,47 @@ pub fn malvar(m: &Mosaic) -> Image<f32> {
     Image::from_vec(m.width, m.height, 3, out)
 }
 
-/// Samples of mirrored border Malvar–He–Cutler's filters reach on each side.
+/// Gradients (encoded samples) below which a direction counts about as much as the other: a
+/// quarter of an 8-bit level, so flat ground takes the mean of both estimates.
+const FLAT: f32 = 1e-3;
+
+/// Green at a red or blue sample `c` from its four green neighbours `[left, right, up, down]`
+/// and its own colour two samples away along the row (`far_h`, their sum) and down the column
+/// (`far_v`): the Hamilton–Adams estimate of each direction (the neighbours' mean corrected by
+/// the own colour's second difference), each weighted by the inverse of how much the samples
+/// change along it, so that an edge takes the estimate along itself.
+fn directional_green(c: f32, [left, right, up, down]: [f32; 4], far_h: f32, far_v: f32) -> f32 {
+    let along_row = (left - right).abs() + (2.0 * c - far_h).abs() + FLAT;
+    let down_column = (up - down).abs() + (2.0 * c - far_v).abs() + FLAT;
+    let row = (left + right) / 2.0 + (2.0 * c - far_h) / 4.0;
+    let column = (up + down) / 2.0 + (2.0 * c - far_v) / 4.0;
+    (row * down_column + column * along_row) / (along_row + down_column)
+}
+
+/// The cheap development pixel by pixel: [`malvar`] with [`directional_green`] at the red and
+/// blue samples, what [`cheap_over`] must give exactly.
+#[cfg(test)]
+pub fn cheap(m: &Mosaic) -> Image<f32> {
+    let mut out = malvar(m);
+    let p = Padded::new(m, |v| v);
+    for y in 0..m.height {
+        for x in (0..m.width).filter(|&x| m.order.channel(x, y) != 1) {
+            let s = |dx: isize, dy: isize| p.at(x, y, dx, dy);
+            let near = [s(-1, 0), s(1, 0), s(0, -1), s(0, 1)];
+            let g = directional_green(s(0, 0), near, s(-2, 0) + s(2, 0), s(0, -2) + s(0, 2));
+            out.data_mut()[(y * m.width + x) * 3 + 1] = g;
+        }
+    }
+    out
+}
+
+/// Samples of mirrored border the cheap development's filters reach on each side.
 const BORDER: usize = 2;
 
 /// Output rows a task of [`malvar_over`] makes: the rows it reads are a fifth more.
 const TASK_ROWS: usize = 16;
 
-/// One row's four filters of [`malvar`], each over the whole row, so that they vectorise.
+/// One row's four filters of [`cheap`], each over the whole row, so that they vectorise.
 #[derive(Default)]
 struct Filtered {
     g_at_rb: Vec<f32>,
@@ -121,7 +163,7 @@ struct Filtered {
 
 impl Filtered {
     /// The filters at the `n` pixels of a row whose window rows (`n + 2·BORDER` samples, the
-    /// row's own in the middle) are `w`: the same operations in the same order as [`malvar`],
+    /// row's own in the middle) are `w`: the same operations in the same order as [`cheap`],
     /// so the same values.
     fn run(&mut self, w: [&[f32]; 5], n: usize) {
         for v in [
@@ -139,12 +181,11 @@ impl Filtered {
             // Window column x + 2 is the pixel's.
             let c = c0[x + 2];
             let (left, right, up, down) = (c0[x + 1], c0[x + 3], m1[x + 2], p1[x + 2]);
-            let cross = left + right + up + down;
             let far = c0[x] + c0[x + 4] + m2[x + 2] + p2[x + 2];
             let diag = m1[x + 1] + m1[x + 3] + p1[x + 1] + p1[x + 3];
             let far_h = c0[x] + c0[x + 4];
             let far_v = m2[x + 2] + p2[x + 2];
-            g_at_rb[x] = (4.0 * c + 2.0 * cross - far) / 8.0;
+            g_at_rb[x] = directional_green(c, [left, right, up, down], far_h, far_v);
             from_row[x] = (5.0 * c + 4.0 * (left + right) - diag - far_h + 0.5 * far_v) / 8.0;
             from_col[x] = (5.0 * c + 4.0 * (up + down) - diag - far_v + 0.5 * far_h) / 8.0;
             from_diag[x] = (6.0 * c + 2.0 * diag - 1.5 * far) / 8.0;
@@ -152,7 +193,7 @@ impl Filtered {
     }
 }
 
-/// [`malvar`] over the `rect` of a `width`×`height` mosaic of Bayer `order`, row by row in
+/// [`cheap`] over the `rect` of a `width`×`height` mosaic of Bayer `order`, row by row in
 /// parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from column `x0` on, as
 /// many as `row` holds (all inside the mosaic; the border is mirrored here), and `pixel`
 /// writes an output pixel's three values to its `C` samples in `out` (the `rect`'s pixels row
@@ -160,7 +201,7 @@ impl Filtered {
 /// development reads a frame's integer samples through a table with no frame-sized float
 /// copy. Each row's four filters run over the whole row, and each pixel takes the two its
 /// colour needs.
-pub fn malvar_over<T: Send>(
+pub fn cheap_over<T: Send>(
     (width, height): (usize, usize),
     order: BayerOrder,
     rect: Rect,
@@ -235,7 +276,7 @@ mod tests {
                 .map(|i| ((i * 7919) % 1000) as f32 / 999.0)
                 .collect(),
         };
-        let whole = malvar(&m);
+        let whole = cheap(&m);
         let fill = |y: usize, x0: usize, row: &mut [f32]| {
             row.copy_from_slice(&m.data[y * w + x0..][..row.len()]);
         };
@@ -248,7 +289,7 @@ mod tests {
                 height,
             };
             let mut out = vec![0.0; width * height * 3];
-            malvar_over((w, h), m.order, r, &fill, &pixel, &mut out);
+            cheap_over((w, h), m.order, r, &fill, &pixel, &mut out);
             for yy in 0..height {
                 for xx in 0..width {
                     for c in 0..3 {

@@ -1,6 +1,6 @@
 //! A stack of raw frames developed lazily for the fuse ([`Develop`]): each frame cheaply in
-//! whole (Malvar–He–Cutler on encoded samples, [`linear::malvar_over`], a twentieth of the
-//! full demosaic's work), and with the full demosaic only over the regions the fuse asks for;
+//! whole (Malvar–He–Cutler with a directional green on encoded samples, [`linear::cheap_over`],
+//! about a twentieth of the full demosaic's work), and with the full demosaic only over the regions the fuse asks for;
 //! one white balance for the stack.
 
 use super::demosaic::demosaic_regions;
@@ -50,7 +50,7 @@ impl RawStack {
     }
 
     /// Frame `i`'s samples as both developments read them, row by row (see
-    /// [`linear::malvar_over`]): each sample read from the frame's bytes and through a table
+    /// [`linear::cheap_over`]): each sample read from the frame's bytes and through a table
     /// per colour to its balanced, sRGB-encoded value. The same values as unpacking to linear
     /// light, balancing and encoding the whole frame, without a frame-sized buffer between the
     /// steps. An error if the bytes do not hold the frame.
@@ -119,7 +119,7 @@ impl RawStack {
             .iter()
             .map(|&r| {
                 let mut out = vec![0u8; r.width * r.height * 3];
-                linear::malvar_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
+                linear::cheap_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
                 Image::from_vec(r.width, r.height, 3, out)
             })
             .collect()
@@ -238,7 +238,7 @@ mod tests {
             // Unpacked, balanced, encoded, filtered, decoded, through the matrix, to 8 bits.
             let mut m = stack.frames[0].mosaic().expect("unpacks");
             m.balance(stack.developer.locked());
-            let mut rgb = linear::encoded(&m, linear::malvar);
+            let mut rgb = linear::encoded(&m, linear::cheap);
             stack.developer.to_srgb(&mut rgb, [1.0; 3]);
             let want = encode(&rgb);
             assert!(got == want, "{packing:?} {order:?}: not the same pixels");
