@@ -201,7 +201,9 @@ pub fn unmix<T: Sample>(
         })
         .collect();
     let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
-    let sides = depth_steps::sides(frames, coverage, &frame_of, &depth, &reduced, factor);
+    let everywhere = Coverage::intersection(coverage);
+    let told = evidenced(depth.clone(), &everywhere, w, n);
+    let sides = depth_steps::sides(frames, coverage, &frame_of, &told, &reduced, factor);
     if let Some(settled) = settled {
         let relabelled = depth_steps::relabel(&mut depth, &sides);
         for (l, &d) in labels.iter_mut().zip(&depth) {
@@ -213,7 +215,7 @@ pub fn unmix<T: Sample>(
         });
     }
     progress.advance(1);
-    let objects = sides.objects;
+    let objects = evidenced(sides.objects, &everywhere, w, n);
     let masks = region_masks(&objects, w, h, n, factor);
     // The fit needs only luma, in both lights; the colour is decoded to linear light only when
     // that is the light chosen, so one light's reduced frames are held, never both.
@@ -251,7 +253,12 @@ pub fn unmix<T: Sample>(
         let groups = blurs.of(l, &mixed, &masks, factor);
         if !groups.is_empty() {
             let spill = Spill::sum(&groups, factor);
-            let is_guarded = |p: usize| nearest[p] as usize + 2 <= l;
+            // Next to a nearer region, or labelled nearer where not every frame reaches (the
+            // label says nothing of depth there, so nothing is known to take out).
+            let is_guarded = |p: usize| {
+                nearest[p] as usize + 2 <= l
+                    || (depth[p] as usize + 2 <= l && !everywhere.covers(p % w, p / w))
+            };
             out.changed[frame_of(l)] = spill.apply(&mut frames[frame_of(l)], &is_guarded, light);
         }
         progress.advance(1);
@@ -266,6 +273,23 @@ pub fn unmix<T: Sample>(
         })
         .collect();
     out
+}
+
+/// `objects` (depth ranks) with the pixels `everywhere` leaves out taken as the farthest depth,
+/// no near object: there the labelling could choose only among the frames that reach the pixel
+/// (at the border, often the reference alone), so a label there says nothing of depth, and a
+/// strip of the reference's label along a border of far labels would be taken for a near
+/// object whose spill is taken out of the frames around it.
+fn evidenced(mut objects: Vec<u8>, everywhere: &Coverage, w: usize, n: usize) -> Vec<u8> {
+    let farthest = (n - 1) as u8;
+    objects.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, d) in row.iter_mut().enumerate() {
+            if !everywhere.covers(x, y) {
+                *d = farthest;
+            }
+        }
+    });
+    objects
 }
 
 /// Per depth rank, the share of each reduced pixel it covers in `depth`: one pass counting

@@ -270,6 +270,31 @@ fn nothing_is_filled_where_a_frame_does_not_reach() {
         .all(|i| pixel(&frames[2], i) == pixel(&before[2], i)));
 }
 
+/// Where not every frame reaches, the labelling chose among the frames that do: a strip of the
+/// nearest frame's label along the border is no near object, and no spill is taken out around it.
+#[test]
+fn a_label_where_a_frame_does_not_reach_is_no_near_object() {
+    let (mut frames, _) = scene(Light::Linear);
+    let before = frames.clone();
+    let mut labels = exact_labels();
+    const STRIP: usize = 2;
+    for row in labels.chunks_mut(SIZE) {
+        row[..STRIP].fill(0);
+    }
+    let mut coverage = full(3);
+    for c in &mut coverage[1..] {
+        c.spans.fill((STRIP as u32, SIZE as u32));
+    }
+    let out = unmix_covered(&mut frames, &mut labels, &coverage, Order::NearestFirst);
+    assert!(out.changed[2] > 0, "the disc's halo is still taken out");
+    // Beyond the disc's spill (2.5 of its 4 px blur), the background beside the strip.
+    let beside = (0..SIZE * SIZE).filter(|&i| (STRIP..30).contains(&(i % SIZE)));
+    let moved = beside
+        .filter(|&i| pixel(&frames[2], i) != pixel(&before[2], i))
+        .count();
+    assert_eq!(moved, 0);
+}
+
 /// The same haloed scene with an order its edges did not tell: left exactly as it is, labels
 /// too, and the log says why.
 #[test]
