@@ -262,13 +262,13 @@ fn high_pass(p: &Plane) -> Plane {
 
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
 /// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`] and its pooled
-/// energy, what [`trust`] compares against, made the first time a pair needs them. Made once
+/// energy, what [`trust`] compares against, each made the first time a pair needs it. Made once
 /// per frame: a frame is the far side of one pair of the chain and the near side of the next,
 /// and the reference's levels serve both sides' chains (each side makes its own ladder, as its
 /// pairs need it).
 struct Pyramid {
     levels: Arc<Vec<Plane>>,
-    ladder: OnceLock<Vec<Plane>>,
+    ladder: [OnceLock<Plane>; DEFOCUS.len()],
     energy: OnceLock<Vec<f32>>,
 }
 
@@ -289,19 +289,14 @@ impl Pyramid {
     fn with_levels(levels: Arc<Vec<Plane>>) -> Pyramid {
         Pyramid {
             levels,
-            ladder: OnceLock::new(),
+            ladder: Default::default(),
             energy: OnceLock::new(),
         }
     }
 
-    /// The working level blurred by each rung of [`DEFOCUS`].
-    fn ladder(&self) -> &[Plane] {
-        self.ladder.get_or_init(|| {
-            DEFOCUS
-                .par_iter()
-                .map(|&s| blur_nan(&self.levels[0], s))
-                .collect()
-        })
+    /// The working level blurred by rung `k` of [`DEFOCUS`].
+    fn rung(&self, k: usize) -> &Plane {
+        self.ladder[k].get_or_init(|| blur_nan(&self.levels[0], DEFOCUS[k]))
     }
 
     /// The working level's high-passed energy pooled over the window: where a frame is the
@@ -508,31 +503,39 @@ fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
         .zip(&moved)
         .map(|(e0, e1)| weight(*e0, *e1))
         .collect();
-    // The ladder's least residual is at most the plain one, so where the flow is kept nowhere
-    // it is surely moved nowhere: the ladder is not needed (NaN weights do not count as 0).
-    let sure = if kept.iter().all(|&k| k == 0.0) {
-        vec![0.0; w * h]
-    } else {
-        // The least residual, lowered rung by rung in place (the plain one is not needed
-        // again), then turned into the weight in place.
-        let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
-        let mut least = plain;
-        for (blurred_a, blurred_b) in pa.ladder().iter().zip(pb.ladder()) {
-            let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
-            least
-                .par_iter_mut()
-                .zip(ea.par_iter().zip(eb))
-                .zip(ra.par_iter().zip(&rb))
-                .for_each(|((l, (ea, eb)), (ra, rb))| {
-                    *l = l.min(if ea >= eb { *ra } else { *rb });
-                });
+    // The least residual, lowered rung by rung in place (the plain one is not needed again),
+    // then turned into the weight in place. The weight falls as the least residual does, so a
+    // pixel whose weight is already 0 (every pixel where the flow is not kept, the least being
+    // at most the plain residual) stays 0 whatever the rungs left: a rung's residuals are made
+    // only for the frame some other pixel still takes them from, and no rung once none does
+    // (NaN weights do not count as 0). Each frame's rungs are blurred only when first taken.
+    let mut least = plain;
+    for k in 0..DEFOCUS.len() {
+        let live = |i: usize| kept[i] != 0.0 && weight(least[i], moved[i]) != 0.0;
+        if !(0..w * h).into_par_iter().any(live) {
+            break;
         }
-        least
-            .par_iter_mut()
-            .zip(&moved)
-            .for_each(|(e, e1)| *e = weight(*e, *e1));
-        least
-    };
+        let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
+        let takes = |from_a: bool| {
+            (0..w * h)
+                .into_par_iter()
+                .any(|i| (ea[i] >= eb[i]) == from_a && live(i))
+        };
+        let (from_a, from_b) = rayon::join(|| takes(true), || takes(false));
+        let (ra, rb) = rayon::join(
+            || from_a.then(|| sq(pa.rung(k), b, false)),
+            || from_b.then(|| sq(a, pb.rung(k), false)),
+        );
+        least.par_iter_mut().enumerate().for_each(|(i, l)| {
+            if let Some(r) = if ea[i] >= eb[i] { &ra } else { &rb } {
+                *l = l.min(r[i]);
+            }
+        });
+    }
+    let mut sure = least;
+    sure.par_iter_mut()
+        .zip(&moved)
+        .for_each(|(e, e1)| *e = weight(*e, *e1));
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
         .zip(&kept)
