@@ -503,39 +503,36 @@ fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
         .zip(&moved)
         .map(|(e0, e1)| weight(*e0, *e1))
         .collect();
-    // The least residual, lowered rung by rung in place (the plain one is not needed again),
-    // then turned into the weight in place. The weight falls as the least residual does, so a
-    // pixel whose weight is already 0 (every pixel where the flow is not kept, the least being
-    // at most the plain residual) stays 0 whatever the rungs left: a rung's residuals are made
-    // only for the frame some other pixel still takes them from, and no rung once none does
-    // (NaN weights do not count as 0). Each frame's rungs are blurred only when first taken.
-    let mut least = plain;
+    // The least residual, lowered rung by rung, then turned into the weight, only where the
+    // flow is kept: elsewhere the weight is 0 whatever the rungs, the least residual being at
+    // most the plain one (NaN weights do not count as 0). The weight falls as the least
+    // residual does, so a pixel whose weight is already 0 stays 0: a rung's residuals are made
+    // only for the frame some pixel still takes them from, and no rung once none does. Each
+    // frame's rungs are blurred only when first taken.
+    let at: Vec<usize> = (0..w * h).filter(|&i| kept[i] != 0.0).collect();
+    let mut least: Vec<f32> = at.iter().map(|&i| plain[i]).collect();
     for k in 0..DEFOCUS.len() {
-        let live = |i: usize| kept[i] != 0.0 && weight(least[i], moved[i]) != 0.0;
-        if !(0..w * h).into_par_iter().any(live) {
+        let live = |j: usize| weight(least[j], moved[at[j]]) != 0.0;
+        if !(0..at.len()).any(live) {
             break;
         }
         let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
-        let takes = |from_a: bool| {
-            (0..w * h)
-                .into_par_iter()
-                .any(|i| (ea[i] >= eb[i]) == from_a && live(i))
-        };
-        let (from_a, from_b) = rayon::join(|| takes(true), || takes(false));
+        let from_a = |j: usize| ea[at[j]] >= eb[at[j]];
+        let takes = |a: bool| (0..at.len()).any(|j| from_a(j) == a && live(j));
         let (ra, rb) = rayon::join(
-            || from_a.then(|| sq(pa.rung(k), b, false)),
-            || from_b.then(|| sq(a, pb.rung(k), false)),
+            || takes(true).then(|| sq(pa.rung(k), b, false)),
+            || takes(false).then(|| sq(a, pb.rung(k), false)),
         );
-        least.par_iter_mut().enumerate().for_each(|(i, l)| {
-            if let Some(r) = if ea[i] >= eb[i] { &ra } else { &rb } {
-                *l = l.min(r[i]);
+        for (j, l) in least.iter_mut().enumerate() {
+            if let Some(r) = if from_a(j) { &ra } else { &rb } {
+                *l = l.min(r[at[j]]);
             }
-        });
+        }
     }
-    let mut sure = least;
-    sure.par_iter_mut()
-        .zip(&moved)
-        .for_each(|(e, e1)| *e = weight(*e, *e1));
+    let mut sure = vec![0.0; w * h];
+    for (&i, l) in at.iter().zip(&least) {
+        sure[i] = weight(*l, moved[i]);
+    }
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
         .zip(&kept)
