@@ -262,13 +262,13 @@ fn high_pass(p: &Plane) -> Plane {
 
 /// A plane's high-passed pyramid, the working level first, up to [`LEVELS`] reduced ones: what
 /// [`flow`] matches; and its working level blurred by each rung of [`DEFOCUS`] and its pooled
-/// energy, what [`trust`] compares against, made the first time a pair needs them. Made once
+/// energy, what [`trust`] compares against, each made the first time a pair needs it. Made once
 /// per frame: a frame is the far side of one pair of the chain and the near side of the next,
 /// and the reference's levels serve both sides' chains (each side makes its own ladder, as its
 /// pairs need it).
 struct Pyramid {
     levels: Arc<Vec<Plane>>,
-    ladder: OnceLock<Vec<Plane>>,
+    ladder: [OnceLock<Plane>; DEFOCUS.len()],
     energy: OnceLock<Vec<f32>>,
 }
 
@@ -289,19 +289,14 @@ impl Pyramid {
     fn with_levels(levels: Arc<Vec<Plane>>) -> Pyramid {
         Pyramid {
             levels,
-            ladder: OnceLock::new(),
+            ladder: Default::default(),
             energy: OnceLock::new(),
         }
     }
 
-    /// The working level blurred by each rung of [`DEFOCUS`].
-    fn ladder(&self) -> &[Plane] {
-        self.ladder.get_or_init(|| {
-            DEFOCUS
-                .par_iter()
-                .map(|&s| blur_nan(&self.levels[0], s))
-                .collect()
-        })
+    /// The working level blurred by rung `k` of [`DEFOCUS`].
+    fn rung(&self, k: usize) -> &Plane {
+        self.ladder[k].get_or_init(|| blur_nan(&self.levels[0], DEFOCUS[k]))
     }
 
     /// The working level's high-passed energy pooled over the window: where a frame is the
@@ -508,31 +503,36 @@ fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
         .zip(&moved)
         .map(|(e0, e1)| weight(*e0, *e1))
         .collect();
-    // The ladder's least residual is at most the plain one, so where the flow is kept nowhere
-    // it is surely moved nowhere: the ladder is not needed (NaN weights do not count as 0).
-    let sure = if kept.iter().all(|&k| k == 0.0) {
-        vec![0.0; w * h]
-    } else {
-        // The least residual, lowered rung by rung in place (the plain one is not needed
-        // again), then turned into the weight in place.
-        let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
-        let mut least = plain;
-        for (blurred_a, blurred_b) in pa.ladder().iter().zip(pb.ladder()) {
-            let (ra, rb) = rayon::join(|| sq(blurred_a, b, false), || sq(a, blurred_b, false));
-            least
-                .par_iter_mut()
-                .zip(ea.par_iter().zip(eb))
-                .zip(ra.par_iter().zip(&rb))
-                .for_each(|((l, (ea, eb)), (ra, rb))| {
-                    *l = l.min(if ea >= eb { *ra } else { *rb });
-                });
+    // The least residual, lowered rung by rung, then turned into the weight, only where the
+    // flow is kept: elsewhere the weight is 0 whatever the rungs, the least residual being at
+    // most the plain one (NaN weights do not count as 0). The weight falls as the least
+    // residual does, so a pixel whose weight is already 0 stays 0: a rung's residuals are made
+    // only for the frame some pixel still takes them from, and no rung once none does. Each
+    // frame's rungs are blurred only when first taken.
+    let at: Vec<usize> = (0..w * h).filter(|&i| kept[i] != 0.0).collect();
+    let mut least: Vec<f32> = at.iter().map(|&i| plain[i]).collect();
+    for k in 0..DEFOCUS.len() {
+        let live = |j: usize| weight(least[j], moved[at[j]]) != 0.0;
+        if !(0..at.len()).any(live) {
+            break;
         }
-        least
-            .par_iter_mut()
-            .zip(&moved)
-            .for_each(|(e, e1)| *e = weight(*e, *e1));
-        least
-    };
+        let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
+        let from_a = |j: usize| ea[at[j]] >= eb[at[j]];
+        let takes = |a: bool| (0..at.len()).any(|j| from_a(j) == a && live(j));
+        let (ra, rb) = rayon::join(
+            || takes(true).then(|| sq(pa.rung(k), b, false)),
+            || takes(false).then(|| sq(a, pb.rung(k), false)),
+        );
+        for (j, l) in least.iter_mut().enumerate() {
+            if let Some(r) = if from_a(j) { &ra } else { &rb } {
+                *l = l.min(r[at[j]]);
+            }
+        }
+    }
+    let mut sure = vec![0.0; w * h];
+    for (&i, l) in at.iter().zip(&least) {
+        sure[i] = weight(*l, moved[i]);
+    }
     f.dx.par_iter_mut()
         .zip(f.dy.par_iter_mut())
         .zip(&kept)
