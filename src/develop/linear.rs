@@ -149,7 +149,7 @@ pub fn cheap(m: &Mosaic) -> Image<f32> {
 /// Samples of mirrored border the cheap development's filters reach on each side.
 const BORDER: usize = 2;
 
-/// Output rows a task of [`malvar_over`] makes: the rows it reads are a fifth more.
+/// Output rows a task of [`cheap_over`] makes: the rows it reads are a fifth more.
 const TASK_ROWS: usize = 16;
 
 /// One row's four filters of [`cheap`], each over the whole row, so that they vectorise.
