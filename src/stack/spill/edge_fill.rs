@@ -1,7 +1,6 @@
 //! The edge fill: near objects' own pixels next to a depth step copied into the frames focused
 //! behind them.
 
-use crate::stack::align::Coverage;
 use crate::stack::image::{Image, Sample};
 use crate::stack::morphology::window_max;
 #[cfg(doc)]
@@ -14,6 +13,8 @@ const FILL_REACH: usize = 6;
 /// Copies each near object's own pixels next to a depth step into the frames focused two or
 /// more planes behind it, where the labels and the colours at the step ([`depth_steps::sides`]) agree that
 /// the object is there and within [`FILL_REACH`] of the step; returns how many pixels.
+/// `objects` are the depth ranks the colours agree with, the farthest where not every frame
+/// reaches.
 ///
 /// The un-mixing cleans a far frame only outside the near object. Inside its edge the far frame
 /// still shows the object defocused with the background through it, and the compose's coarser
@@ -28,21 +29,20 @@ pub(super) fn fill_near_objects<T: Sample>(
     frames: &mut [Image<T>],
     depth: &[u8],
     objects: &[u8],
-    coverage: &[Coverage],
     frame_of: &(dyn Fn(usize) -> usize + Sync),
 ) -> usize {
     let (w, h, ch) = (frames[0].width(), frames[0].height(), frames[0].channels());
-    // Only where every frame reaches: near the border a label can be the reference's because
-    // the frame the labelling chose does not cover the pixel, which says nothing of depth
-    // (filled there, a border would take the reference's blurred background).
-    let everywhere = Coverage::intersection(coverage);
+    // Nothing is filled where not every frame reaches: `objects` holds the farthest rank there,
+    // which no plane lies behind (near the border a label can be the reference's because the
+    // frame the labelling chose does not cover the pixel, which says nothing of depth; filled
+    // there, a border would take the reference's blurred background).
     // Per pixel, its object's depth rank + 1 where it is filled, else 0.
     let mut fill = window_max(depth, w, h, FILL_REACH);
     fill.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, f) in row.iter_mut().enumerate() {
             let (i, k) = (y * w + x, depth[y * w + x]);
             let step = *f as usize >= k as usize + 2;
-            let agreed = objects[i] == k && everywhere.covers(x, y);
+            let agreed = objects[i] == k;
             *f = if step && agreed { k + 1 } else { 0 };
         }
     });

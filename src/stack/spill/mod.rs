@@ -263,7 +263,7 @@ pub fn unmix<T: Sample>(
         }
         progress.advance(1);
     }
-    out.filled = fill_near_objects(frames, &depth, &objects, coverage, &frame_of);
+    out.filled = fill_near_objects(frames, &depth, &objects, &frame_of);
     out.pairs = pairs
         .into_iter()
         .map(|p| Pair {
