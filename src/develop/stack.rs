@@ -3,7 +3,7 @@
 //! about a twentieth of the full demosaic's work), and with the full demosaic only over the regions the fuse asks for;
 //! one white balance for the stack.
 
-use super::demosaic::demosaic_regions;
+use super::demosaic::{demosaic_regions, Regions};
 use super::{grey_world, linear, raw, Developer, Encode8, Mosaic, RawFrame};
 use crate::stack::image::Image;
 use crate::stack::srgb;
@@ -116,7 +116,7 @@ impl RawStack {
         let f = &self.frames[i];
         let pixel = self.pixel();
         rects
-            .iter()
+            .par_iter()
             .map(|&r| {
                 let mut out = vec![0u8; r.width * r.height * 3];
                 linear::cheap_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
@@ -171,15 +171,39 @@ impl Develop<u8> for RawStack {
         Ok(pieces.pop().expect("one rectangle asked for"))
     }
 
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
-        let f = &self.frames[i];
-        let rows = self.encoded_rows(i)?;
-        let full = demosaic_regions((f.width, f.height), f.order, &rows, &self.pixel(), rects);
-        let cheap = self.cheap_over(i, &rows, rects);
+    fn full(&self, asked: &[(usize, &[Rect])]) -> Result<Vec<Vec<Piece<u8>>>, (usize, String)> {
+        let rows = asked
+            .iter()
+            .map(|&(i, _)| self.encoded_rows(i).map_err(|e| (i, e)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let regions: Vec<Regions<_>> = asked
+            .iter()
+            .zip(&rows)
+            .map(|(&(i, rects), fill)| {
+                let f = &self.frames[i];
+                Regions {
+                    size: (f.width, f.height),
+                    order: f.order,
+                    fill,
+                    rects,
+                }
+            })
+            .collect();
+        let full = demosaic_regions(&regions, &self.pixel());
+        let cheap: Vec<Vec<Image<u8>>> = asked
+            .par_iter()
+            .zip(&rows)
+            .map(|(&(i, rects), fill)| self.cheap_over(i, fill, rects))
+            .collect();
         Ok(full
             .into_iter()
             .zip(cheap)
-            .map(|(full, cheap)| Piece { full, cheap })
+            .map(|(full, cheap)| {
+                full.into_iter()
+                    .zip(cheap)
+                    .map(|(full, cheap)| Piece { full, cheap })
+                    .collect()
+            })
             .collect())
     }
 
@@ -266,7 +290,7 @@ mod tests {
                 width,
                 height,
             });
-            let pieces = stack.full(0, &rects).expect("develops");
+            let pieces = stack.full(&[(0, &rects[..])]).expect("develops").remove(0);
             for (piece, r) in pieces.iter().zip(rects) {
                 for yy in 0..r.height {
                     let got = &piece.full.data()[yy * r.width * 3..][..r.width * 3];
