@@ -270,32 +270,48 @@ mod tests {
     }
 
     #[test]
-    fn the_full_development_of_a_region_is_the_whole_frames_cut() {
+    fn regions_asked_together_are_each_frames_whole_development_cut() {
         for (packing, order, seed) in [
             (Packing::Mipi10, BayerOrder::Grbg, 3),
             (Packing::Le16, BayerOrder::Bggr, 11),
         ] {
-            let stack = RawStack::new(frames(packing, order, seed)).expect("a stack");
+            let takes = [seed, seed + 1].map(|s| frames(packing, order, s).remove(0));
+            let stack = RawStack::new(takes.to_vec()).expect("a stack");
             let w = stack.frames[0].width;
-            // Unpacked, balanced, demosaiced whole, through the matrix, to 8 bits.
-            let mut m = stack.frames[0].mosaic().expect("unpacks");
-            m.balance(stack.developer.locked());
-            let mut rgb = super::super::demosaic::demosaic(&m);
-            stack.developer.to_srgb(&mut rgb, [1.0; 3]);
-            let want = encode(&rgb);
-            // One inside on odd coordinates, one against the top left corner.
-            let rects = [(37, 21, 50, 19), (0, 0, 30, 12)].map(|(x, y, width, height)| Rect {
+            // One inside on odd coordinates, one against the top left corner; the second
+            // frame's elsewhere.
+            let rect = |(x, y, width, height)| Rect {
                 x,
                 y,
                 width,
                 height,
-            });
-            let pieces = stack.full(&[(0, &rects[..])]).expect("develops").remove(0);
-            for (piece, r) in pieces.iter().zip(rects) {
-                for yy in 0..r.height {
-                    let got = &piece.full.data()[yy * r.width * 3..][..r.width * 3];
-                    let at = ((r.y + yy) * w + r.x) * 3;
-                    assert_eq!(got, &want.data()[at..][..r.width * 3], "{order:?} {r:?}");
+            };
+            let rects = [
+                [(37, 21, 50, 19), (0, 0, 30, 12)].map(rect),
+                [(5, 40, 64, 24), (90, 3, 17, 30)].map(rect),
+            ];
+            let asked = [(0, &rects[0][..]), (1, &rects[1][..])];
+            let developed = stack.full(&asked).expect("develops");
+            for (i, pieces) in developed.iter().enumerate() {
+                // Unpacked, balanced, demosaiced whole, through the matrix, to 8 bits.
+                let mut m = stack.frames[i].mosaic().expect("unpacks");
+                m.balance(stack.developer.locked());
+                let mut rgb = super::super::demosaic::demosaic(&m);
+                stack.developer.to_srgb(&mut rgb, [1.0; 3]);
+                let want = encode(&rgb);
+                let cheap = stack.cheap(i).expect("develops");
+                for (piece, r) in pieces.iter().zip(rects[i]) {
+                    for yy in 0..r.height {
+                        let row = yy * r.width * 3..(yy + 1) * r.width * 3;
+                        let at = ((r.y + yy) * w + r.x) * 3..((r.y + yy) * w + r.x + r.width) * 3;
+                        let what = format!("frame {i} {order:?} {r:?}");
+                        assert_eq!(
+                            &piece.full.data()[row.clone()],
+                            &want.data()[at.clone()],
+                            "{what}"
+                        );
+                        assert_eq!(&piece.cheap.data()[row], &cheap.data()[at], "{what}");
+                    }
                 }
             }
         }
