@@ -167,14 +167,14 @@ pub struct Regions<'a, F> {
 /// gives them before it decodes them: each rectangle is developed with the mosaic around it as
 /// far as an output pixel's value reaches (`PAD`, the border mirrored here), rectangles close
 /// together in one window ([`windows`]), the windows of every frame in one parallel run, the
-/// largest first, so that cores share unequal windows evenly. `pixel` writes an output pixel's
-/// three encoded values to its three samples (decoded, through a colour matrix, to 8 bits:
-/// whatever the caller keeps), in the window's task, so that no float copy of the regions is
-/// made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
+/// largest first, so that cores share unequal windows evenly. `pixels` writes a row of output
+/// pixels from their encoded red, green and blue rows, three samples a pixel (decoded, through a
+/// colour matrix, to 8 bits: whatever the caller keeps), in the window's task, so that no float
+/// copy of the regions is made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
 /// copy; a window's working planes are reused by the next, so at most one per core is made.
 pub fn demosaic_regions<T: Sample, F: Fn(usize, usize, &mut [f32]) + Sync>(
     frames: &[Regions<F>],
-    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
+    pixels: &(impl Fn([&[f32]; 3], &mut [T]) + Sync),
 ) -> Vec<Vec<Image<T>>> {
     let spare = Mutex::new(Vec::<Workspace>::new());
     let mut tasks: Vec<(usize, Rect, Vec<usize>)> = frames
@@ -237,9 +237,7 @@ pub fn demosaic_regions<T: Sample, F: Fn(usize, usize, &mut [f32]) + Sync>(
                     let mut out = vec![T::default(); r.width * r.height * 3];
                     for (yy, row) in out.chunks_exact_mut(r.width * 3).enumerate() {
                         let at = (yy + dy) * ww + dx;
-                        for (xx, px) in row.chunks_exact_mut(3).enumerate() {
-                            pixel(planes.map(|p| p[at + xx]), px);
-                        }
+                        pixels(planes.map(|p| &p[at..at + r.width]), row);
                     }
                     (f, k, Image::from_vec(r.width, r.height, 3, out))
                 })
@@ -1045,10 +1043,12 @@ pub(super) mod tests {
     }
 
     /// `demosaic_regions`'s pixels as [`demosaic`] gives them: decoded to linear light.
-    fn decoded(rgb: [f32; 3], out: &mut [f32]) {
+    fn decoded(rgb: [&[f32]; 3], out: &mut [f32]) {
         let decode = &srgb::tabulated().decode;
-        for (o, v) in out.iter_mut().zip(rgb) {
-            *o = decode.at(v);
+        for (k, px) in out.chunks_exact_mut(3).enumerate() {
+            for (o, c) in px.iter_mut().zip(rgb) {
+                *o = decode.at(c[k]);
+            }
         }
     }
 

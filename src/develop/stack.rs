@@ -4,7 +4,8 @@
 //! one white balance for the stack.
 
 use super::demosaic::{demosaic_regions, Regions};
-use super::{grey_world, linear, raw, Developer, Encode8, Mosaic, RawFrame};
+use super::pixels::Pixels;
+use super::{grey_world, linear, raw, Developer, Mosaic, RawFrame};
 use crate::stack::image::Image;
 use crate::stack::srgb;
 use crate::stack::{Develop, Piece, Rect};
@@ -90,23 +91,16 @@ impl RawStack {
         })
     }
 
-    /// What both developments make of a pixel's encoded red, green and blue: decoded, through
-    /// the colour matrix and to 8-bit sRGB.
-    fn pixel(&self) -> impl Fn([f32; 3], &mut [u8]) + Sync + '_ {
-        let decode = &srgb::tabulated().decode;
-        let to8 = Encode8::table();
-        move |rgb: [f32; 3], out: &mut [u8]| {
-            let linear = [decode.at(rgb[0]), decode.at(rgb[1]), decode.at(rgb[2])];
-            let v = self.developer.srgb(linear);
-            out[0] = to8.at(v[0]);
-            out[1] = to8.at(v[1]);
-            out[2] = to8.at(v[2]);
-        }
+    /// What both developments make of a row of pixels' encoded red, green and blue: decoded,
+    /// through the colour matrix and to 8-bit sRGB ([`Pixels`]).
+    fn pixels(&self) -> impl Fn([&[f32]; 3], &mut [u8]) + Sync + '_ {
+        let pixels = Pixels::new(&self.developer);
+        move |rgb: [&[f32]; 3], out: &mut [u8]| pixels.row(rgb, out)
     }
 
     /// The cheap development of frame `i` over each of `rects`, from its encoded rows
     /// ([`RawStack::encoded_rows`]): Malvar–He–Cutler, each pixel through
-    /// [`RawStack::pixel`].
+    /// [`RawStack::pixels`].
     fn cheap_over(
         &self,
         i: usize,
@@ -114,12 +108,12 @@ impl RawStack {
         rects: &[Rect],
     ) -> Vec<Image<u8>> {
         let f = &self.frames[i];
-        let pixel = self.pixel();
+        let pixels = self.pixels();
         rects
             .par_iter()
             .map(|&r| {
                 let mut out = vec![0u8; r.width * r.height * 3];
-                linear::cheap_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
+                linear::cheap_over((f.width, f.height), f.order, r, fill, &pixels, &mut out);
                 Image::from_vec(r.width, r.height, 3, out)
             })
             .collect()
@@ -189,7 +183,7 @@ impl Develop<u8> for RawStack {
                 }
             })
             .collect();
-        let full = demosaic_regions(&regions, &self.pixel());
+        let full = demosaic_regions(&regions, &self.pixels());
         let cheap: Vec<Vec<Image<u8>>> = asked
             .par_iter()
             .zip(&rows)
