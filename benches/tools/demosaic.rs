@@ -123,9 +123,11 @@ fn cheap_encoded(m: &Mosaic) -> Image<f32> {
             *v = curves.encode.at(*s);
         }
     };
-    let pixel = |rgb: [f32; 3], px: &mut [f32]| {
-        for (o, v) in px.iter_mut().zip(rgb) {
-            *o = curves.decode.at(v);
+    let pixels = |rgb: [&[f32]; 3], out: &mut [f32]| {
+        for (k, px) in out.chunks_exact_mut(3).enumerate() {
+            for (o, c) in px.iter_mut().zip(rgb) {
+                *o = curves.decode.at(c[k]);
+            }
         }
     };
     let all = Rect {
@@ -134,7 +136,7 @@ fn cheap_encoded(m: &Mosaic) -> Image<f32> {
         width: w,
         height: h,
     };
-    cheap_over((w, h), m.order, all, &fill, &pixel, &mut out);
+    cheap_over((w, h), m.order, all, &fill, &pixels, &mut out);
     Image::from_vec(w, h, 3, out)
 }
 

@@ -153,27 +153,50 @@ pub fn demosaic(m: &Mosaic) -> Image<f32> {
     in_strips(m, STRIP_ROWS)
 }
 
-/// [`demosaic`] over each of `rects` only, exactly as the whole frame's development gives them
-/// before it decodes them, of a `width`×`height` mosaic of Bayer `order` whose samples,
+/// A frame's regions for [`demosaic_regions`]: a `size` mosaic of Bayer `order` whose samples,
 /// sRGB-encoded, `fill(y, x0, row)` gives (mosaic row `y` from column `x0` on, as many as `row`
-/// holds, all inside the mosaic): each rectangle is developed with the mosaic around it as far
-/// as an output pixel's value reaches (`PAD`, the border mirrored here), rectangles close
-/// together in one window ([`windows`]), the windows in parallel. `pixel` writes an output
-/// pixel's three encoded values to its three samples (decoded, through a colour matrix, to 8 bits:
-/// whatever the caller keeps), in the window's task, so that no float copy of the regions is
-/// made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
-/// copy.
-pub fn demosaic_regions<T: Sample>(
-    (width, height): (usize, usize),
-    order: BayerOrder,
-    fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
-    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
-    rects: &[Rect],
-) -> Vec<Image<T>> {
+/// holds, all inside the mosaic), and the rectangles of it wanted.
+pub struct Regions<'a, F> {
+    pub size: (usize, usize),
+    pub order: BayerOrder,
+    pub fill: &'a F,
+    pub rects: &'a [Rect],
+}
+
+/// [`demosaic`] over each frame's rectangles only, exactly as the whole frame's development
+/// gives them before it decodes them: each rectangle is developed with the mosaic around it as
+/// far as an output pixel's value reaches (`PAD`, the border mirrored here), rectangles close
+/// together in one window ([`windows`]), the windows of every frame in one parallel run, the
+/// largest first, so that cores share unequal windows evenly. `pixels` writes a row of output
+/// pixels from their encoded red, green and blue rows, three samples a pixel (decoded, through a
+/// colour matrix, to 8 bits: whatever the caller keeps), in the window's task, so that no float
+/// copy of the regions is made. Only the windows are ever encoded, so a frame's samples need no frame-sized float
+/// copy; a window's working planes are reused by the next, so at most one per core is made.
+pub fn demosaic_regions<T: Sample, F: Fn(usize, usize, &mut [f32]) + Sync>(
+    frames: &[Regions<F>],
+    pixels: &(impl Fn([&[f32]; 3], &mut [T]) + Sync),
+) -> Vec<Vec<Image<T>>> {
     let spare = Mutex::new(Vec::<Workspace>::new());
-    let pieces: Vec<Vec<(usize, Image<T>)>> = windows(rects, width)
+    let mut tasks: Vec<(usize, Rect, Vec<usize>)> = frames
+        .iter()
+        .enumerate()
+        .flat_map(|(f, regions)| {
+            windows(regions.rects, regions.size.0)
+                .into_iter()
+                .map(move |(window, members)| (f, window, members))
+        })
+        .collect();
+    tasks.sort_by_key(|(_, r, _)| std::cmp::Reverse(r.width * r.height));
+    let pieces: Vec<Vec<(usize, usize, Image<T>)>> = tasks
         .par_iter()
-        .map(|&(window, ref members)| {
+        .with_max_len(1)
+        .map(|&(f, window, ref members)| {
+            let Regions {
+                size: (width, height),
+                order,
+                fill,
+                rects,
+            } = frames[f];
             let Rect {
                 x,
                 y,
@@ -214,11 +237,9 @@ pub fn demosaic_regions<T: Sample>(
                     let mut out = vec![T::default(); r.width * r.height * 3];
                     for (yy, row) in out.chunks_exact_mut(r.width * 3).enumerate() {
                         let at = (yy + dy) * ww + dx;
-                        for (xx, px) in row.chunks_exact_mut(3).enumerate() {
-                            pixel(planes.map(|p| p[at + xx]), px);
-                        }
+                        pixels(planes.map(|p| &p[at..at + r.width]), row);
                     }
-                    (k, Image::from_vec(r.width, r.height, 3, out))
+                    (f, k, Image::from_vec(r.width, r.height, 3, out))
                 })
                 .collect();
             spare
@@ -228,12 +249,20 @@ pub fn demosaic_regions<T: Sample>(
             cut
         })
         .collect();
-    let mut out: Vec<Option<Image<T>>> = rects.iter().map(|_| None).collect();
-    for (k, img) in pieces.into_iter().flatten() {
-        out[k] = Some(img);
+    let mut out: Vec<Vec<Option<Image<T>>>> = frames
+        .iter()
+        .map(|regions| regions.rects.iter().map(|_| None).collect())
+        .collect();
+    for (f, k, img) in pieces.into_iter().flatten() {
+        out[f][k] = Some(img);
     }
     out.into_iter()
-        .map(|img| img.expect("every rectangle is in a window"))
+        .map(|frame| {
+            frame
+                .into_iter()
+                .map(|img| img.expect("every rectangle is in a window"))
+                .collect()
+        })
         .collect()
 }
 
@@ -1014,10 +1043,12 @@ pub(super) mod tests {
     }
 
     /// `demosaic_regions`'s pixels as [`demosaic`] gives them: decoded to linear light.
-    fn decoded(rgb: [f32; 3], out: &mut [f32]) {
+    fn decoded(rgb: [&[f32]; 3], out: &mut [f32]) {
         let decode = &srgb::tabulated().decode;
-        for (o, v) in out.iter_mut().zip(rgb) {
-            *o = decode.at(v);
+        for (k, px) in out.chunks_exact_mut(3).enumerate() {
+            for (o, c) in px.iter_mut().zip(rgb) {
+                *o = decode.at(c[k]);
+            }
         }
     }
 
@@ -1034,7 +1065,14 @@ pub(super) mod tests {
                 width: 7,
                 height: 3,
             };
-            let part = &demosaic_regions((9, 5), order, &encoded_rows(&m), &decoded, &[r])[0];
+            let fill = encoded_rows(&m);
+            let regions = Regions {
+                size: (9, 5),
+                order,
+                fill: &fill,
+                rects: &[r],
+            };
+            let part = &demosaic_regions(&[regions], &decoded)[0][0];
             let whole = demosaic(&m);
             for yy in 0..3 {
                 assert_eq!(
@@ -1073,7 +1111,14 @@ pub(super) mod tests {
         assert!(grouped.len() < rects.len(), "{grouped:?}");
         let first = grouped.iter().find(|(_, k)| k.contains(&0)).expect("held");
         assert!(first.1.contains(&4) && first.1.contains(&5), "{grouped:?}");
-        let regions = demosaic_regions((w, h), m.order, &encoded_rows(&m), &decoded, &rects);
+        let fill = encoded_rows(&m);
+        let asked = Regions {
+            size: (w, h),
+            order: m.order,
+            fill: &fill,
+            rects: &rects,
+        };
+        let regions = demosaic_regions(&[asked], &decoded).remove(0);
         for (part, r) in regions.iter().zip(rects) {
             let Rect {
                 x,

@@ -195,9 +195,9 @@ impl Filtered {
 
 /// [`cheap`] over the `rect` of a `width`×`height` mosaic of Bayer `order`, row by row in
 /// parallel: `fill(y, x0, row)` gives the samples of mosaic row `y` from column `x0` on, as
-/// many as `row` holds (all inside the mosaic; the border is mirrored here), and `pixel`
-/// writes an output pixel's three values to its `C` samples in `out` (the `rect`'s pixels row
-/// by row). What the samples are (encoded, balanced) is up to `fill`, so that the cheap
+/// many as `row` holds (all inside the mosaic; the border is mirrored here), and `pixels`
+/// writes a row of output pixels from their red, green and blue rows, `C` samples a pixel, in
+/// `out` (the `rect`'s pixels row by row). What the samples are (encoded, balanced) is up to `fill`, so that the cheap
 /// development reads a frame's integer samples through a table with no frame-sized float
 /// copy. Each row's four filters run over the whole row, and each pixel takes the two its
 /// colour needs.
@@ -206,7 +206,7 @@ pub fn cheap_over<T: Send>(
     order: BayerOrder,
     rect: Rect,
     fill: &(impl Fn(usize, usize, &mut [f32]) + Sync),
-    pixel: &(impl Fn([f32; 3], &mut [T]) + Sync),
+    pixels: &(impl Fn([&[f32]; 3], &mut [T]) + Sync),
     out: &mut [T],
 ) {
     const C: usize = 3;
@@ -222,8 +222,8 @@ pub fn cheap_over<T: Send>(
     out.par_chunks_mut(rect.width * C * TASK_ROWS)
         .enumerate()
         .for_each_init(
-            || (Vec::new(), Filtered::default()),
-            |(window, filtered), (task, chunk)| {
+            || (Vec::new(), Filtered::default(), [(); 3].map(|_| Vec::new())),
+            |(window, filtered, rgb), (task, chunk)| {
                 let y0 = rect.y + task * TASK_ROWS;
                 let rows = chunk.len() / (rect.width * C);
                 window.resize((rows + 2 * BORDER) * ww, 0.0);
@@ -251,10 +251,11 @@ pub fn cheap_over<T: Send>(
                         }
                     };
                     let phases = [phase(0), phase(1)];
-                    for (xx, px) in row.chunks_exact_mut(C).enumerate() {
-                        let [r, g, b] = phases[xx & 1];
-                        pixel([r[xx], g[xx], b[xx]], px);
+                    for (c, line) in rgb.iter_mut().enumerate() {
+                        line.clear();
+                        line.extend((0..rect.width).map(|xx| phases[xx & 1][c][xx]));
                     }
+                    pixels([&rgb[0][..], &rgb[1][..], &rgb[2][..]], row);
                 }
             },
         );
@@ -280,7 +281,13 @@ mod tests {
         let fill = |y: usize, x0: usize, row: &mut [f32]| {
             row.copy_from_slice(&m.data[y * w + x0..][..row.len()]);
         };
-        let pixel = |rgb: [f32; 3], out: &mut [f32]| out.copy_from_slice(&rgb);
+        let pixels = |rgb: [&[f32]; 3], out: &mut [f32]| {
+            for (k, px) in out.chunks_exact_mut(3).enumerate() {
+                for (o, c) in px.iter_mut().zip(rgb) {
+                    *o = c[k];
+                }
+            }
+        };
         for (x, y, width, height) in [(0, 0, 5, 3), (1, 1, 1, 1), (30, 20, 7, 9), (3, 10, 20, 17)] {
             let r = Rect {
                 x,
@@ -289,7 +296,7 @@ mod tests {
                 height,
             };
             let mut out = vec![0.0; width * height * 3];
-            cheap_over((w, h), m.order, r, &fill, &pixel, &mut out);
+            cheap_over((w, h), m.order, r, &fill, &pixels, &mut out);
             for yy in 0..height {
                 for xx in 0..width {
                     for c in 0..3 {

@@ -11,6 +11,7 @@ pub mod demosaic;
 pub mod frame;
 pub mod half;
 pub mod linear;
+mod pixels;
 pub mod raw;
 pub mod stack;
 
@@ -164,16 +165,24 @@ pub fn encode(rgb: &Image<f32>) -> Image<u8> {
 pub struct Encode8(&'static [u8]);
 
 impl Encode8 {
-    const STEPS: usize = 4096;
+    pub const STEPS: usize = 4096;
 
     /// The table, made on first use.
     pub fn table() -> Encode8 {
         static TABLE: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
         Encode8(TABLE.get_or_init(|| {
+            // Three bytes of padding, so that a four-byte read at the last step stays inside
+            // (`pixels`' vector code).
             (0..=Self::STEPS)
                 .map(|i| (srgb_encode(i as f32 / Self::STEPS as f32) * 255.0 + 0.5) as u8)
+                .chain([0; 3])
                 .collect()
         }))
+    }
+
+    /// The table, [`Encode8::STEPS`] + 1 values and three bytes of padding.
+    pub fn bytes(self) -> &'static [u8] {
+        self.0
     }
 
     /// The linear value `v` as 8-bit sRGB.

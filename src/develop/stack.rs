@@ -3,8 +3,9 @@
 //! about a twentieth of the full demosaic's work), and with the full demosaic only over the regions the fuse asks for;
 //! one white balance for the stack.
 
-use super::demosaic::demosaic_regions;
-use super::{grey_world, linear, raw, Developer, Encode8, Mosaic, RawFrame};
+use super::demosaic::{demosaic_regions, Regions};
+use super::pixels::Pixels;
+use super::{grey_world, linear, raw, Developer, Mosaic, RawFrame};
 use crate::stack::image::Image;
 use crate::stack::srgb;
 use crate::stack::{Develop, Piece, Rect};
@@ -90,23 +91,16 @@ impl RawStack {
         })
     }
 
-    /// What both developments make of a pixel's encoded red, green and blue: decoded, through
-    /// the colour matrix and to 8-bit sRGB.
-    fn pixel(&self) -> impl Fn([f32; 3], &mut [u8]) + Sync + '_ {
-        let decode = &srgb::tabulated().decode;
-        let to8 = Encode8::table();
-        move |rgb: [f32; 3], out: &mut [u8]| {
-            let linear = [decode.at(rgb[0]), decode.at(rgb[1]), decode.at(rgb[2])];
-            let v = self.developer.srgb(linear);
-            out[0] = to8.at(v[0]);
-            out[1] = to8.at(v[1]);
-            out[2] = to8.at(v[2]);
-        }
+    /// What both developments make of a row of pixels' encoded red, green and blue: decoded,
+    /// through the colour matrix and to 8-bit sRGB ([`Pixels`]).
+    fn pixels(&self) -> impl Fn([&[f32]; 3], &mut [u8]) + Sync + '_ {
+        let pixels = Pixels::new(&self.developer);
+        move |rgb: [&[f32]; 3], out: &mut [u8]| pixels.row(rgb, out)
     }
 
     /// The cheap development of frame `i` over each of `rects`, from its encoded rows
     /// ([`RawStack::encoded_rows`]): Malvar–He–Cutler, each pixel through
-    /// [`RawStack::pixel`].
+    /// [`RawStack::pixels`].
     fn cheap_over(
         &self,
         i: usize,
@@ -114,12 +108,12 @@ impl RawStack {
         rects: &[Rect],
     ) -> Vec<Image<u8>> {
         let f = &self.frames[i];
-        let pixel = self.pixel();
+        let pixels = self.pixels();
         rects
-            .iter()
+            .par_iter()
             .map(|&r| {
                 let mut out = vec![0u8; r.width * r.height * 3];
-                linear::cheap_over((f.width, f.height), f.order, r, fill, &pixel, &mut out);
+                linear::cheap_over((f.width, f.height), f.order, r, fill, &pixels, &mut out);
                 Image::from_vec(r.width, r.height, 3, out)
             })
             .collect()
@@ -171,15 +165,39 @@ impl Develop<u8> for RawStack {
         Ok(pieces.pop().expect("one rectangle asked for"))
     }
 
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
-        let f = &self.frames[i];
-        let rows = self.encoded_rows(i)?;
-        let full = demosaic_regions((f.width, f.height), f.order, &rows, &self.pixel(), rects);
-        let cheap = self.cheap_over(i, &rows, rects);
+    fn full(&self, asked: &[(usize, &[Rect])]) -> Result<Vec<Vec<Piece<u8>>>, (usize, String)> {
+        let rows = asked
+            .iter()
+            .map(|&(i, _)| self.encoded_rows(i).map_err(|e| (i, e)))
+            .collect::<Result<Vec<_>, _>>()?;
+        let regions: Vec<Regions<_>> = asked
+            .iter()
+            .zip(&rows)
+            .map(|(&(i, rects), fill)| {
+                let f = &self.frames[i];
+                Regions {
+                    size: (f.width, f.height),
+                    order: f.order,
+                    fill,
+                    rects,
+                }
+            })
+            .collect();
+        let full = demosaic_regions(&regions, &self.pixels());
+        let cheap: Vec<Vec<Image<u8>>> = asked
+            .par_iter()
+            .zip(&rows)
+            .map(|(&(i, rects), fill)| self.cheap_over(i, fill, rects))
+            .collect();
         Ok(full
             .into_iter()
             .zip(cheap)
-            .map(|(full, cheap)| Piece { full, cheap })
+            .map(|(full, cheap)| {
+                full.into_iter()
+                    .zip(cheap)
+                    .map(|(full, cheap)| Piece { full, cheap })
+                    .collect()
+            })
             .collect())
     }
 
@@ -246,32 +264,48 @@ mod tests {
     }
 
     #[test]
-    fn the_full_development_of_a_region_is_the_whole_frames_cut() {
+    fn regions_asked_together_are_each_frames_whole_development_cut() {
         for (packing, order, seed) in [
             (Packing::Mipi10, BayerOrder::Grbg, 3),
             (Packing::Le16, BayerOrder::Bggr, 11),
         ] {
-            let stack = RawStack::new(frames(packing, order, seed)).expect("a stack");
+            let takes = [seed, seed + 1].map(|s| frames(packing, order, s).remove(0));
+            let stack = RawStack::new(takes.to_vec()).expect("a stack");
             let w = stack.frames[0].width;
-            // Unpacked, balanced, demosaiced whole, through the matrix, to 8 bits.
-            let mut m = stack.frames[0].mosaic().expect("unpacks");
-            m.balance(stack.developer.locked());
-            let mut rgb = super::super::demosaic::demosaic(&m);
-            stack.developer.to_srgb(&mut rgb, [1.0; 3]);
-            let want = encode(&rgb);
-            // One inside on odd coordinates, one against the top left corner.
-            let rects = [(37, 21, 50, 19), (0, 0, 30, 12)].map(|(x, y, width, height)| Rect {
+            // One inside on odd coordinates, one against the top left corner; the second
+            // frame's elsewhere.
+            let rect = |(x, y, width, height)| Rect {
                 x,
                 y,
                 width,
                 height,
-            });
-            let pieces = stack.full(0, &rects).expect("develops");
-            for (piece, r) in pieces.iter().zip(rects) {
-                for yy in 0..r.height {
-                    let got = &piece.full.data()[yy * r.width * 3..][..r.width * 3];
-                    let at = ((r.y + yy) * w + r.x) * 3;
-                    assert_eq!(got, &want.data()[at..][..r.width * 3], "{order:?} {r:?}");
+            };
+            let rects = [
+                [(37, 21, 50, 19), (0, 0, 30, 12)].map(rect),
+                [(5, 40, 64, 24), (90, 3, 17, 30)].map(rect),
+            ];
+            let asked = [(0, &rects[0][..]), (1, &rects[1][..])];
+            let developed = stack.full(&asked).expect("develops");
+            for (i, pieces) in developed.iter().enumerate() {
+                // Unpacked, balanced, demosaiced whole, through the matrix, to 8 bits.
+                let mut m = stack.frames[i].mosaic().expect("unpacks");
+                m.balance(stack.developer.locked());
+                let mut rgb = super::super::demosaic::demosaic(&m);
+                stack.developer.to_srgb(&mut rgb, [1.0; 3]);
+                let want = encode(&rgb);
+                let cheap = stack.cheap(i).expect("develops");
+                for (piece, r) in pieces.iter().zip(rects[i]) {
+                    for yy in 0..r.height {
+                        let row = yy * r.width * 3..(yy + 1) * r.width * 3;
+                        let at = ((r.y + yy) * w + r.x) * 3..((r.y + yy) * w + r.x + r.width) * 3;
+                        let what = format!("frame {i} {order:?} {r:?}");
+                        assert_eq!(
+                            &piece.full.data()[row.clone()],
+                            &want.data()[at.clone()],
+                            "{what}"
+                        );
+                        assert_eq!(&piece.cheap.data()[row], &cheap.data()[at], "{what}");
+                    }
                 }
             }
         }

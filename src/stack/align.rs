@@ -362,26 +362,31 @@ impl<T: Sample> Source<'_, T> {
                         }
                     });
             }
+            // Row by row in parallel: the band is some megabytes of mostly zeros.
             Source::Patches { patches, .. } => {
-                dst.fill(0.0);
-                let end = first + dst.len() / (fw * L);
-                for patch in patches.iter() {
-                    let (r, cheap) = (patch.0, patch.2.data());
-                    for y in r.y.max(first)..(r.y + r.height).min(end) {
-                        let at = ((y - first) * fw + r.x) * L;
-                        let pixels = &mut dst[at..at + r.width * L];
-                        let diffs = pixels.chunks_exact_mut(L).flat_map(|d| &mut d[..C]);
-                        for (d, v) in diffs.zip(patch_row(patch, y - r.y)) {
-                            *d = v;
-                        }
-                        let cheap = cheap[(y - r.y) * r.width * C..][..r.width * C].chunks(C);
-                        for (d, v) in pixels.chunks_exact_mut(L).zip(cheap) {
-                            for (d, v) in d[L / 2..].iter_mut().zip(v) {
-                                *d = v.to_f32();
+                dst.par_chunks_mut(fw * L)
+                    .enumerate()
+                    .for_each(|(k, line)| {
+                        line.fill(0.0);
+                        let y = first + k;
+                        for patch in patches.iter() {
+                            let (r, cheap) = (patch.0, patch.2.data());
+                            if !(r.y..r.y + r.height).contains(&y) {
+                                continue;
+                            }
+                            let pixels = &mut line[r.x * L..(r.x + r.width) * L];
+                            let diffs = pixels.chunks_exact_mut(L).flat_map(|d| &mut d[..C]);
+                            for (d, v) in diffs.zip(patch_row(patch, y - r.y)) {
+                                *d = v;
+                            }
+                            let cheap = cheap[(y - r.y) * r.width * C..][..r.width * C].chunks(C);
+                            for (d, v) in pixels.chunks_exact_mut(L).zip(cheap) {
+                                for (d, v) in d[L / 2..].iter_mut().zip(v) {
+                                    *d = v.to_f32();
+                                }
                             }
                         }
-                    }
-                }
+                    });
             }
         }
     }

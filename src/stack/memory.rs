@@ -180,9 +180,9 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
         }
         false => 0,
     };
-    // Developing lazily: one frame's development, its regions developed both ways (at most the
-    // whole frame each), and the rows of their difference and cheap development a band of the
-    // warp reads.
+    // Developing lazily: the development's working planes, the regions of the frames developed
+    // together both ways (at most a whole frame's worth each, `refine`), and the rows of their
+    // difference and cheap development a band of the warp reads.
     let develop = match s.held {
         0 => 0,
         _ => frames + s.developing + 2 * frame + 4 * scratch * refine_lanes(s.channels),

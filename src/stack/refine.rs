@@ -5,11 +5,13 @@
 //! margins the blending and the warp reach. The stack says how it develops ([`Develop`]); the
 //! engine stays pixel work, whatever the frames are.
 
-use super::align::{patch_row, warp_refine_into, Patch, Rect};
+use super::align::{patch_row, warp_refine_into, Exposure, Patch, Rect};
 use super::fuse::{warp_of, Alignment};
 use super::image::{Image, Sample};
 use super::register::Placement;
+use super::transform::Warp;
 use super::{Progress, Stage};
+use rayon::prelude::*;
 
 /// A stack developed two ways: cheaply in whole, in full over the regions asked for.
 pub trait Develop<T>: Sync {
@@ -17,10 +19,12 @@ pub trait Develop<T>: Sync {
     fn frames(&self) -> usize;
     /// Frame `i`, cheaply developed at its full size. The same image every time it is asked.
     fn cheap(&self, i: usize) -> Result<Image<T>, String>;
-    /// Frame `i` over each of `rects` (in the frame's own geometry) at full quality, and
-    /// cheaply as [`Develop::cheap`] gives those pixels: what refining a frame takes, with no
-    /// second cheap development of the whole frame.
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<T>>, String>;
+    /// Frames at full quality over the rectangles asked of each (`(i, rects)`, in the frame's
+    /// own geometry), and cheaply as [`Develop::cheap`] gives those pixels: what refining
+    /// takes, with no second cheap development of a whole frame. Frames are asked together so
+    /// that the stack can share their work out over the cores; the pieces come in the order
+    /// asked. An error names the frame.
+    fn full(&self, asked: &[(usize, &[Rect])]) -> Result<Vec<Vec<Piece<T>>>, (usize, String)>;
     /// Bytes the stack holds until the compose (its undeveloped frames).
     fn held_bytes(&self) -> usize;
     /// Bytes developing one frame takes while it runs, cheaply or in full.
@@ -101,66 +105,115 @@ pub(super) fn refine<T: Sample>(
         frame_pixels: w * h,
         ..Developed::default()
     };
-    for (i, frame) in frames.iter_mut().enumerate() {
+    // Each frame's warp and regions. Frames share the output's geometry (the fuse checks it),
+    // so regions are known before anything is developed, and a frame that gives no region (or
+    // inherits its placement, taking no label) is not developed again.
+    let jobs: Vec<Job> = (0..frames.len())
+        .into_par_iter()
+        .filter_map(|i| {
+            let warp = match alignment {
+                Some(a) if matches!(a.registration.how[i], Placement::Inherited { .. }) => {
+                    return None
+                }
+                Some(a) if i != reference => {
+                    Some((warp_of(&a.registration, i), &a.exposure[i][..]))
+                }
+                _ => None,
+            };
+            let rects = match labels {
+                None => vec![Rect {
+                    x: 0,
+                    y: 0,
+                    width: w,
+                    height: h,
+                }],
+                Some((labels, textured)) => {
+                    regions(labels, textured, i as u8, (w, h), |x, y| match &warp {
+                        Some((warp, _)) => warp.apply(x, y),
+                        None => (x, y),
+                    })
+                }
+            };
+            (!rects.is_empty()).then_some(Job {
+                frame: i,
+                warp,
+                rects,
+            })
+        })
+        .collect();
+    progress.advance(frames.len() - jobs.len());
+    // Frames developed together, their windows in one parallel run, while their regions add up
+    // to at most a frame: a frame's regions are a few windows of unequal size, which two cores
+    // alone would not share evenly, and the memory plan holds one frame's worth both ways.
+    let mut batches: Vec<&[Job]> = Vec::new();
+    let mut rest = &jobs[..];
+    while !rest.is_empty() {
+        let mut area = 0;
+        let n = rest
+            .iter()
+            .take_while(|j| {
+                area += j.pixels();
+                area <= w * h
+            })
+            .count()
+            .max(1);
+        let (batch, after) = rest.split_at(n);
+        batches.push(batch);
+        rest = after;
+    }
+    for batch in batches {
         if progress.cancelled() {
             break;
         }
-        let warp = match alignment {
-            Some(a) if matches!(a.registration.how[i], Placement::Inherited { .. }) => continue,
-            Some(a) if i != reference => Some((warp_of(&a.registration, i), &a.exposure[i])),
-            _ => None,
-        };
-        // Frames share the output's geometry (the fuse checks it), so regions are known before
-        // anything is developed, and a frame that gives no region is not developed again.
-        let rects = match labels {
-            None => vec![Rect {
-                x: 0,
-                y: 0,
-                width: w,
-                height: h,
-            }],
-            Some((labels, textured)) => {
-                regions(labels, textured, i as u8, (w, h), |x, y| match &warp {
-                    Some((warp, _)) => warp.apply(x, y),
-                    None => (x, y),
-                })
-            }
-        };
-        if rects.is_empty() {
-            progress.advance(1);
-            continue;
-        }
-        let pieces = stack.full(i, &rects).map_err(|e| (i, e))?;
-        let patches: Vec<Patch<T>> = rects
-            .iter()
-            .zip(&pieces)
-            .map(|(&r, p)| (r, &p.full, &p.cheap))
-            .collect();
-        done.pixels += rects.iter().map(|r| r.width * r.height).sum::<usize>();
-        done.rects += rects.len();
-        match &warp {
-            Some((warp, exposure)) => {
-                warp_refine_into(&patches, (w, h), warp, exposure, frame, &mut scratch);
-            }
-            None => {
-                let ch = frame.channels();
-                for patch in &patches {
-                    let r = patch.0;
-                    for y in 0..r.height {
-                        let row =
-                            &mut frame.data_mut()[((r.y + y) * w + r.x) * ch..][..r.width * ch];
-                        for (v, d) in row.iter_mut().zip(patch_row(patch, y)) {
-                            if d != 0.0 {
-                                *v = T::from_f32(v.to_f32() + d);
+        let asked: Vec<(usize, &[Rect])> = batch.iter().map(|j| (j.frame, &j.rects[..])).collect();
+        let developed = stack.full(&asked)?;
+        for (job, pieces) in batch.iter().zip(developed) {
+            let frame = &mut frames[job.frame];
+            let patches: Vec<Patch<T>> = job
+                .rects
+                .iter()
+                .zip(&pieces)
+                .map(|(&r, p)| (r, &p.full, &p.cheap))
+                .collect();
+            done.pixels += job.pixels();
+            done.rects += job.rects.len();
+            match &job.warp {
+                Some((warp, exposure)) => {
+                    warp_refine_into(&patches, (w, h), warp, exposure, frame, &mut scratch);
+                }
+                None => {
+                    let ch = frame.channels();
+                    for patch in &patches {
+                        let r = patch.0;
+                        for y in 0..r.height {
+                            let row =
+                                &mut frame.data_mut()[((r.y + y) * w + r.x) * ch..][..r.width * ch];
+                            for (v, d) in row.iter_mut().zip(patch_row(patch, y)) {
+                                if d != 0.0 {
+                                    *v = T::from_f32(v.to_f32() + d);
+                                }
                             }
                         }
                     }
                 }
             }
+            progress.advance(1);
         }
-        progress.advance(1);
     }
     Ok(done)
+}
+
+/// A frame to refine: its warp onto the reference (`None`: it is the reference) and regions.
+struct Job<'a> {
+    frame: usize,
+    warp: Option<(Warp, &'a [Exposure])>,
+    rects: Vec<Rect>,
+}
+
+impl Job<'_> {
+    fn pixels(&self) -> usize {
+        self.rects.iter().map(|r| r.width * r.height).sum()
+    }
 }
 
 /// The rectangles of a `w`×`h` frame whose pixels the textured output pixels labelled `label`
@@ -265,12 +318,15 @@ mod tests {
         fn cheap(&self, i: usize) -> Result<Image<u8>, String> {
             Ok(self.cheap[i].clone())
         }
-        fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<u8>>, String> {
-            let piece = |r| Piece {
+        fn full(&self, asked: &[(usize, &[Rect])]) -> Result<Vec<Vec<Piece<u8>>>, (usize, String)> {
+            let piece = |i: usize, r| Piece {
                 full: crop(&self.full[i], r),
                 cheap: crop(&self.cheap[i], r),
             };
-            Ok(rects.iter().map(|&r| piece(r)).collect())
+            Ok(asked
+                .iter()
+                .map(|&(i, rects)| rects.iter().map(|&r| piece(i, r)).collect())
+                .collect())
         }
         fn held_bytes(&self) -> usize {
             0

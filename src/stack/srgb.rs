@@ -52,6 +52,15 @@ impl Curve {
         Curve { f, table }
     }
 
+    /// The table [`Curve::at`] interpolates, and the factor from a value's magnitude to its
+    /// step; magnitudes from [`Curve::RANGE`] on take the formula instead: for vector code
+    /// that must give `at`'s values.
+    pub fn table(&self) -> (&[[f32; 2]], f32) {
+        (&self.table, CURVE_STEPS as f32 / CURVE_RANGE)
+    }
+
+    pub const RANGE: f32 = CURVE_RANGE;
+
     /// The curve at `v`, within 2e-5 of the formula.
     #[inline]
     pub fn at(&self, v: f32) -> f32 {

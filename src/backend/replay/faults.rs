@@ -76,8 +76,8 @@ impl<T> Develop<T> for HeldDevelopment<'_, T> {
         self.stack.cheap(i)
     }
 
-    fn full(&self, i: usize, rects: &[Rect]) -> Result<Vec<Piece<T>>, String> {
-        self.stack.full(i, rects)
+    fn full(&self, asked: &[(usize, &[Rect])]) -> Result<Vec<Vec<Piece<T>>>, (usize, String)> {
+        self.stack.full(asked)
     }
 
     fn held_bytes(&self) -> usize {
