@@ -11,8 +11,11 @@
 //!   crisp edge's coefficients win over the other frame's defocus spill. Given the stack's focus
 //!   order, a frame focused farther than a pixel's label never gives that pixel its finest band:
 //!   there it shows the near object defocused and the background through its edge, texture that
-//!   would win the contrast choice over the near object's own clean edge.
+//!   would win the contrast choice over the near object's own clean edge. Nor does a frame
+//!   give its finest band where it does not reach: it holds the reference's pixels there (see
+//!   `align`), and its band next to its coverage's edge shows the step between the two.
 
+use super::align::Coverage;
 use super::blur::{blur_rows_into, gaussian_half, strip_rows, PlaneRows, RowBlur, Rows};
 use super::image::{luma_of, Image, Plane, Sample};
 use super::order::Order;
@@ -32,11 +35,20 @@ const FINE_REACH: f32 = 1.5;
 #[derive(Clone, Copy)]
 pub enum Select<'a> {
     MaxContrast,
-    /// Per-pixel frame index, the most pyramid levels to use, and the frames' focus order if
+    /// Per-pixel frame index, the most pyramid levels to use, the frames' focus order if
     /// farther frames are to be kept out of nearer labels' finest band (see the module's note):
     /// only an order the occlusion edges told, since on a guessed one the rule would keep the
-    /// nearer frame out instead, and a stack without such edges has no spill to keep out.
-    Labels(&'a [u8], usize, Option<Order>),
+    /// nearer frame out instead, and a stack without such edges has no spill to keep out; and
+    /// where each frame reaches (`None`: everywhere).
+    Labels(&'a [u8], usize, Option<Order>, Option<Reached<'a>>),
+}
+
+/// Where each frame reaches, for the rows composed.
+#[derive(Clone, Copy)]
+pub struct Reached<'a> {
+    pub coverage: &'a [Coverage],
+    /// The image row the labels composed start at.
+    pub row: usize,
 }
 
 /// One frame's pyramids. The buffers are refilled for every frame, so only the first frame pays
@@ -83,7 +95,7 @@ impl FrameBuffers {
             });
         // Channels in parallel too: the coarse levels are too small to occupy every thread.
         self.bands.par_iter_mut().for_each(|b| fill_laplacian(b));
-        if let Select::Labels(labels, _, order) = select {
+        if let Select::Labels(labels, _, order, reached) = select {
             let m0 = self.mask[0].data_mut();
             m0.par_iter_mut()
                 .zip(*labels)
@@ -94,6 +106,9 @@ impl FrameBuffers {
                 let half = gaussian_half(FINE_REACH);
                 let (w, h) = (r.width(), r.height());
                 blur_rows_into(r.data_mut(), w, h, &half, || PlaneRows(m0));
+                if let Some(reached) = reached {
+                    out_of_reach(r.data_mut(), w, labels, reached, i);
+                }
                 if let Some(order) = order.filter(|o| *o != Order::Unknown) {
                     keep_out_of_nearer(r.data_mut(), labels, order, i, frames);
                 }
@@ -114,6 +129,23 @@ impl FrameBuffers {
     fn residual_weight(&self) -> Option<&[f32]> {
         self.mask.last().map(|m| m.data())
     }
+}
+
+/// Zeroes `reach` (rows `w` wide), where frame `frame` may give the finest band, at pixels it
+/// does not cover, but for those labelled with it.
+fn out_of_reach(reach: &mut [f32], w: usize, labels: &[u8], reached: &Reached, frame: usize) {
+    let covers = &reached.coverage[frame];
+    reach
+        .par_chunks_mut(w)
+        .zip(labels.par_chunks(w))
+        .enumerate()
+        .for_each(|(y, (reach, labels))| {
+            for (x, (r, &l)) in reach.iter_mut().zip(labels).enumerate() {
+                if l as usize != frame && !covers.covers(x, reached.row + y) {
+                    *r = 0.0;
+                }
+            }
+        });
 }
 
 /// Zeroes `reach`, where frame `frame` may give the finest band, at pixels labelled with a frame
@@ -145,7 +177,7 @@ pub fn compose<T: Sample>(
         h,
         match select {
             Select::MaxContrast => None,
-            Select::Labels(_, max, _) => Some(max),
+            Select::Labels(_, max, _, _) => Some(max),
         },
     );
     let bands = bands(h, levels, rows);
@@ -154,7 +186,7 @@ pub fn compose<T: Sample>(
         .iter()
         .map(|b| match select {
             Select::MaxContrast => (0..frames.len()).collect(),
-            Select::Labels(labels, _, _) => {
+            Select::Labels(labels, _, _, _) => {
                 let mut seen = vec![false; frames.len()];
                 labels[b.ext.start * w..b.ext.end * w]
                     .iter()
@@ -170,9 +202,12 @@ pub fn compose<T: Sample>(
         let (e0, e1) = (band.ext.start, band.ext.end);
         let select = match select {
             Select::MaxContrast => Select::MaxContrast,
-            Select::Labels(labels, _, order) => {
-                Select::Labels(&labels[e0 * w..e1 * w], levels, order)
-            }
+            Select::Labels(labels, _, order, reached) => Select::Labels(
+                &labels[e0 * w..e1 * w],
+                levels,
+                order,
+                reached.map(|r| Reached { row: e0, ..r }),
+            ),
         };
         let (part, part_choice) = compose_band(
             frames
@@ -429,7 +464,7 @@ mod tests {
         let frames = [a.clone(), b];
         let (out, choice) = compose(
             &frames,
-            Select::Labels(&[0; 1200], 8, None),
+            Select::Labels(&[0; 1200], 8, None, None),
             usize::MAX,
             &NoProgress,
         );
@@ -445,7 +480,7 @@ mod tests {
         let labels: Vec<u8> = (0..1200).map(|i| (i % 40 >= 20) as u8).collect();
         let (out, choice) = compose(
             &frames,
-            Select::Labels(&labels, 8, None),
+            Select::Labels(&labels, 8, None, None),
             usize::MAX,
             &NoProgress,
         );
@@ -467,8 +502,8 @@ mod tests {
         let frames = [near, far];
         let labels: Vec<u8> = (0..1200).map(|i| (i % 40 >= 20) as u8).collect();
         // The checkerboard's amplitude on the near object's side, next to the edge.
-        let texture = |order| {
-            let select = Select::Labels(&labels, 8, order);
+        let texture_where = |order, reached| {
+            let select = Select::Labels(&labels, 8, order, reached);
             let (out, _) = compose(&frames, select, usize::MAX, &NoProgress);
             (10..20)
                 .flat_map(|y| (16..19).map(move |x| (x, y)))
@@ -476,11 +511,20 @@ mod tests {
                 .max()
                 .unwrap()
         };
+        let texture = |order| texture_where(order, None);
         assert!(texture(Some(Order::NearestFirst)) <= 4);
         // Without the order, or with frame 1 the nearer, its texture is chosen there.
         assert!(texture(None) >= 20);
         assert!(texture(Some(Order::FarthestFirst)) >= 20);
         assert!(texture(Some(Order::Unknown)) >= 20);
+        // Nor, without the order, where frame 1 does not reach.
+        let mut coverage = vec![Coverage::full(40, 30); 2];
+        coverage[1].spans.fill((20, 40));
+        let reached = Reached {
+            coverage: &coverage,
+            row: 0,
+        };
+        assert!(texture_where(None, Some(reached)) <= 4);
     }
 
     #[test]
@@ -537,7 +581,7 @@ mod tests {
     #[test]
     fn bands_join_exactly_as_one_image() {
         let (frames, labels) = tall_stack();
-        for select in [Select::Labels(&labels, 5, None), Select::MaxContrast] {
+        for select in [Select::Labels(&labels, 5, None, None), Select::MaxContrast] {
             let whole = compose(&frames, select, usize::MAX, &NoProgress);
             let levels = match select {
                 Select::Labels(..) => 5,

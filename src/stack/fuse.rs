@@ -1,7 +1,7 @@
 //! The fusion entry point: a stack in, one all-in-focus image and its label map out.
 
 use super::align::{estimate_exposure, warp_frame_into, Coverage, Exposure, Rect};
-use super::compose::{compose, Select};
+use super::compose::{compose, Reached, Select};
 use super::graphcut::{label_stack, Labelled};
 use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
@@ -250,6 +250,7 @@ fn fuse_from<T: Sample>(
                     &labels,
                     params.graphcut.blend_levels,
                     params.spill.then_some(order.order),
+                    Some(Reached { coverage, row: 0 }),
                 ),
                 plan.band_rows,
                 progress,

@@ -358,13 +358,22 @@ impl Window {
             return None;
         }
         let edge = dilate(&inside, ww, wh, POOL);
+        // How far inside the grown region, up to just past REACH: the halo the relabelling lets
+        // the spill removal take out lies beyond the outline, and the region's own pixels there
+        // are composed from its frame; deeper in, every frame shows the plain region alike, so
+        // only a label MIN_STEP planes behind the claiming frame moves there (the depth map
+        // would show a hole in the object), and one close to it stays (moved, the output there
+        // would change by the frames' noise, far from any step).
+        let outside: Vec<bool> = inside.iter().map(|&i| !i).collect();
+        let depth = distance(&outside, ww, wh, REACH as u8 + 1);
         let pixels = (0..ww * wh)
             .filter_map(|i| {
                 let p = self.global(i, w);
-                // The region grown, and the crisp edge that bounds it where a farther frame
-                // holds it: the grown region stops at the edge's foot.
+                // The region grown within REACH of its outline, and the crisp edge that bounds
+                // it where a farther frame holds it: the grown region stops at the edge's foot.
+                let behind = depth_of(labels[p] as usize) >= depth_of(k) + MIN_STEP as usize;
                 let take = if inside[i] {
-                    coverage[k].covers(p % w, p / w)
+                    (depth[i] as usize <= REACH || behind) && coverage[k].covers(p % w, p / w)
                 } else {
                     edge[i]
                         && depth_of(labels[p] as usize) > depth_of(k)
@@ -643,6 +652,25 @@ mod tests {
             settled.pixels,
             at(0.0..f32::MAX).iter().filter(|&&l| l == 1).count()
         );
+    }
+
+    #[test]
+    fn a_label_close_to_the_claim_stays_deep_inside_the_region() {
+        let frames = stack();
+        // The disc's core labelled one plane behind its own frame, the rest the background's.
+        let core = |i: usize| radius(i % SIZE, i / SIZE) < 2.0;
+        let mut labels: Vec<u8> = (0..SIZE * SIZE)
+            .map(|i| if core(i) { 2 } else { 3 })
+            .collect();
+        assert_eq!(settle_labels(&frames, &mut labels).regions, 1);
+        // Farther than REACH inside the grown outline (the edge's foot, within POOL of RADIUS)
+        // the core keeps its label; within it the disc takes its frame.
+        assert!((0..SIZE * SIZE)
+            .filter(|&i| core(i))
+            .all(|i| labels[i] == 2));
+        let ring =
+            (0..SIZE * SIZE).filter(|&i| (6.0..RADIUS - 1.0).contains(&radius(i % SIZE, i / SIZE)));
+        assert!(ring.clone().count() > 0 && ring.into_iter().all(|i| labels[i] == 1));
     }
 
     #[test]
