@@ -55,10 +55,13 @@ impl Curve {
     /// The table [`Curve::at`] interpolates, and the factor from a value's magnitude to its
     /// step; magnitudes from [`Curve::RANGE`] on take the formula instead: for vector code
     /// that must give `at`'s values.
+    #[cfg(target_arch = "x86_64")]
     pub fn table(&self) -> (&[[f32; 2]], f32) {
         (&self.table, CURVE_STEPS as f32 / CURVE_RANGE)
     }
 
+    /// Magnitudes from here on take the formula, not the table.
+    #[cfg(target_arch = "x86_64")]
     pub const RANGE: f32 = CURVE_RANGE;
 
     /// The curve at `v`, within 2e-5 of the formula.
