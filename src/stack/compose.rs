@@ -140,9 +140,13 @@ fn out_of_reach(reach: &mut [f32], w: usize, labels: &[u8], reached: &Reached, f
         .zip(labels.par_chunks(w))
         .enumerate()
         .for_each(|(y, (reach, labels))| {
-            for (x, (r, &l)) in reach.iter_mut().zip(labels).enumerate() {
-                if l as usize != frame && !covers.covers(x, reached.row + y) {
-                    *r = 0.0;
+            // Only the pixels left and right of the row's covered span.
+            let (lo, hi) = covers.spans[reached.row + y];
+            let lo = (lo as usize).min(w);
+            let hi = (hi as usize).clamp(lo, w);
+            for x in (0..lo).chain(hi..w) {
+                if labels[x] as usize != frame {
+                    reach[x] = 0.0;
                 }
             }
         });
