@@ -120,9 +120,15 @@ impl OffsetField {
         if m.is_empty() {
             return 0.0;
         }
-        let k = ((m.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+        let k = rank(m.len(), q);
         *m.select_nth_unstable_by(k, f32::total_cmp).1 as f64
     }
+}
+
+/// Which of `n` (at least 1) values, sorted ascending, is their share-`q` (0..=1) quantile, as
+/// [`OffsetField::reach`] takes it.
+pub fn rank(n: usize, q: f64) -> usize {
+    ((n - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize
 }
 
 /// Where each reference pixel lies in a frame: the global affine plus, optionally, a smooth

@@ -37,7 +37,7 @@ use super::refine::resample;
 use crate::stack::blur::gaussian_blur;
 use crate::stack::image::Plane;
 use crate::stack::pyramid::{expand, reduce};
-use crate::stack::transform::{Affine, OffsetField};
+use crate::stack::transform::{rank, Affine, OffsetField};
 use rayon::prelude::*;
 use std::sync::{Arc, OnceLock};
 
@@ -74,9 +74,11 @@ const DEFOCUS: [f32; 4] = [0.7, 1.4, 2.8, 5.6];
 /// `DEAD.1` kept whole (a ramp between): blur differences between neighbours fake motion of
 /// a fraction of a pixel, which costs a tripod stack more than it gains.
 const DEAD: (f32, f32) = (0.5, 1.0);
-/// A field whose 99th percentile displacement (full-resolution pixels) is below this is
+/// A field whose [`PERCENTILE`] displacement (full-resolution pixels) is below this is
 /// dropped: the affine stands alone, and the output is what it was without local registration.
 const MIN_MOTION_PX: f64 = 0.3;
+/// The share of a field's pixels [`MIN_MOTION_PX`] is measured at.
+const PERCENTILE: f64 = 0.99;
 /// Texture too fine for the working level dominates a frame where its energy in the finer
 /// level's Laplacian band, pooled over the window, exceeds this multiple of its pooled
 /// high-passed energy at the working level. Ordinary sharp texture, its energy spread over the
@@ -334,12 +336,19 @@ impl Pyramid {
 }
 
 /// The chain of local fields of one side of the reference: call [`Chain::next`] with each frame
-/// in order outwards from the reference; only the last frame's pyramid and flow are kept.
+/// in order outwards from the reference; only the last frame's pyramid and flow are kept, and
+/// the pyramids of the pairs whose defocus ladder is still to run.
 pub struct Chain {
-    prev: Pyramid,
+    prev: Arc<Pyramid>,
     flow: Flow,
-    /// Per pixel, the most any pair of the chain so far was surely moved there (see [`trust`]).
+    /// Per pixel, the most any pair of the chain so far was surely moved there (see [`trust`]),
+    /// of the pairs whose ladder has run.
     sure: Vec<f32>,
+    /// The pairs whose ladder has not run yet: no field has needed it so far.
+    pending: Vec<Trust>,
+    /// Per pixel, at least the most any pair of the chain so far was surely moved there: `sure`
+    /// raised by the pending pairs' [`Trust::bound`].
+    bound: Vec<f32>,
     /// Pyramid level the planes are at.
     level: usize,
 }
@@ -351,9 +360,11 @@ impl Chain {
         let start = Pyramid::new(&Warped::new(reference, None, &Affine::IDENTITY, 0).plane);
         let (w, h) = (reference.width(), reference.height());
         [0, 1].map(|_| Chain {
-            prev: Pyramid::with_levels(Arc::clone(&start.levels)),
+            prev: Arc::new(Pyramid::with_levels(Arc::clone(&start.levels))),
             flow: Flow::zero(w, h),
             sure: vec![0.0; w * h],
+            pending: Vec::new(),
+            bound: vec![0.0; w * h],
             level,
         })
     }
@@ -361,14 +372,27 @@ impl Chain {
     /// The offset field of the next frame outwards (`ref_to_frame` its global affine, full
     /// resolution), or None where it stays within [`MIN_MOTION_PX`] of the affine.
     pub fn next(&mut self, frame: Warped, ref_to_frame: &Affine) -> Option<OffsetField> {
-        let next = Pyramid::new(&frame.plane);
-        let (d, sure) = flow(&self.prev, &next);
+        let next = Arc::new(Pyramid::new(&frame.plane));
+        let (d, trust) = flow(&self.prev, &next);
         self.flow = self.flow.chain(&d);
-        self.sure
-            .iter_mut()
-            .zip(&sure)
-            .for_each(|(s, n)| *s = s.max(*n));
+        trust.bound(&mut self.bound);
+        self.pending.push(trust);
         self.prev = next;
+        let s = (1u64 << self.level) as f32;
+        // Too few pixels move beyond the dead zone even as sure as they can be: the field is
+        // dropped whatever the ladders say, and they wait for a frame whose field needs them
+        // (on a stack without parallax, most never run).
+        if !self.may_move(s) {
+            return None;
+        }
+        for trust in self.pending.drain(..) {
+            let sure = trust.sure();
+            self.sure
+                .iter_mut()
+                .zip(&sure)
+                .for_each(|(s, n)| *s = s.max(*n));
+        }
+        self.bound.clone_from(&self.sure);
         // No pair of the chain surely moved anywhere yet: every offset is zero (on a stack
         // without parallax, every frame's).
         if self.sure.iter().all(|&s| s == 0.0) {
@@ -395,7 +419,6 @@ impl Chain {
                 })
                 .collect::<Vec<f32>>()
         });
-        let s = (1u64 << self.level) as f32;
         // Frame point = A(x + g) = A(x) + L·g for the affine's linear part L.
         let [[l00, l01, _], [l10, l11, _]] = ref_to_frame.0;
         let (l00, l01, l10, l11) = (l00 as f32, l01 as f32, l10 as f32, l11 as f32);
@@ -424,13 +447,38 @@ impl Chain {
             rows: self.flow.height,
             offsets,
         };
-        (field.reach(0.99) >= MIN_MOTION_PX).then_some(field)
+        (field.reach(PERCENTILE) >= MIN_MOTION_PX).then_some(field)
+    }
+
+    /// Whether the field could reach [`MIN_MOTION_PX`], sureness at its `bound`: not when at
+    /// most the share beyond [`PERCENTILE`] of its pixels are moved beyond the narrowest dead
+    /// zone, [`DEAD`]`.0` (`s` full-resolution pixels a level pixel). Offsets within it are
+    /// dropped, and they only shrink as sureness falls: the field is then dropped whatever the
+    /// ladders say. Computed as the field is, so a NaN or infinite displacement counts as
+    /// beyond.
+    fn may_move(&self, s: f32) -> bool {
+        let (f, n) = (&self.flow, self.bound.len());
+        let beyond = (0..n)
+            .filter(|&i| {
+                let (b, x, y) = (self.bound[i], f.dx[i], f.dy[i]);
+                // Sureness 0 leaves a finite displacement at 0.
+                if b == 0.0 && x.is_finite() && y.is_finite() {
+                    return false;
+                }
+                let d = (s * b * x).hypot(s * b * y);
+                d > DEAD.0 || d.is_nan()
+            })
+            .count();
+        // The percentile is 0 where no more pixels are beyond than sort above it, nor than
+        // sort below it (NaNs may sort below 0).
+        let k = rank(n, PERCENTILE);
+        beyond > (n - 1 - k).min(k)
     }
 }
 
 /// Coarse-to-fine windowed Lucas–Kanade flow taking `a`'s content to where it shows in `b`
-/// (pyramids of one size).
-fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
+/// (pyramids of one size), kept only where [`trust`] keeps it, and the trust test's rest.
+fn flow(a: &Arc<Pyramid>, b: &Arc<Pyramid>) -> (Flow, Trust) {
     let (pa, pb) = (&a.levels, &b.levels);
     let top = pa.len() - 1;
     let mut f = Flow::zero(pa[top].width(), pa[top].height());
@@ -447,21 +495,56 @@ fn flow(a: &Pyramid, b: &Pyramid) -> (Flow, Vec<f32>) {
             }
         }
     }
-    let sure = trust(a, b, &mut f);
-    (f, sure)
+    let trust = trust(a, b, &mut f);
+    (f, trust)
 }
 
 /// Keeps the flow only where it explains the pair clearly better than no local motion (the
 /// windowed squared residual through the flow against that through the affine alone), and
-/// returns where the pair surely moved: where the flow also explains it clearly better than a
-/// change of defocus, the least residual through the affine alone with the locally sharper frame
-/// (more high-passed energy in the window) blurred by any of [`DEFOCUS`]. A change of defocus
-/// between neighbours moves an edge's profile, which a flow reads as motion; against the frames
-/// as they are that flow wins, against the sharper frame blurred as the other is it does not.
-/// Blurring the blurrier frame is no model of defocus and would also explain parallax away.
-/// Each frame comes with its ladder, as [`Pyramid`] holds it.
-fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
+/// returns what tells where the pair surely moved ([`Trust::sure`]): where the flow also
+/// explains it clearly better than a change of defocus, the least residual through the affine
+/// alone with the locally sharper frame (more high-passed energy in the window) blurred by any
+/// of [`DEFOCUS`]. A change of defocus between neighbours moves an edge's profile, which a flow
+/// reads as motion; against the frames as they are that flow wins, against the sharper frame
+/// blurred as the other is it does not. Blurring the blurrier frame is no model of defocus and
+/// would also explain parallax away. Each frame comes with its ladder, as [`Pyramid`] holds it.
+fn trust(pa: &Arc<Pyramid>, pb: &Arc<Pyramid>, f: &mut Flow) -> Trust {
     let (a, b) = (&pa.levels[0], &pb.levels[0]);
+    let (plain, moved) = rayon::join(|| residual(a, b, None), || residual(a, b, Some(&*f)));
+    let kept: Vec<f32> = plain
+        .par_iter()
+        .zip(&moved)
+        .map(|(e0, e1)| weight(*e0, *e1))
+        .collect();
+    // Where the flow is not kept, the pair's sureness is 0 whatever the rungs, the least
+    // residual being at most the plain one (NaN weights do not count as 0).
+    let at: Vec<usize> = (0..kept.len()).filter(|&i| kept[i] != 0.0).collect();
+    f.dx.par_iter_mut()
+        .zip(f.dy.par_iter_mut())
+        .zip(&kept)
+        .for_each(|((dx, dy), k)| {
+            *dx *= k;
+            *dy *= k;
+        });
+    Trust {
+        pa: Arc::clone(pa),
+        pb: Arc::clone(pb),
+        least: at.iter().map(|&i| plain[i]).collect(),
+        moved: at.iter().map(|&i| moved[i]).collect(),
+        at,
+    }
+}
+
+/// The share of the residual `e0` the flow removes (leaving `e1`), mapped to a weight 0..1; it
+/// falls as `e0` does.
+fn weight(e0: f32, e1: f32) -> f32 {
+    let removed = if e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
+    ((removed - EXPLAINED) / EXPLAINED).clamp(0.0, 1.0)
+}
+
+/// `b` (through the flow `f`, if given) squared minus `a`, pooled over the window; NaN (outside
+/// a frame) counts 0.
+fn residual(a: &Plane, b: &Plane, f: Option<&Flow>) -> Vec<f32> {
     let (w, h) = (a.width(), a.height());
     let squared = |v: f32, a: f32| {
         let e = v - a;
@@ -471,76 +554,79 @@ fn trust(pa: &Pyramid, pb: &Pyramid, f: &mut Flow) -> Vec<f32> {
             e * e
         }
     };
-    let sq = |a: &Plane, b: &Plane, moved: bool| {
-        let data: Vec<f32> = if moved {
-            let b = Bilinear::new(b);
-            (0..w * h)
-                .into_par_iter()
-                .map(|i| {
-                    let (x, y) = ((i % w) as f32, (i / w) as f32);
-                    squared(b.at(x + f.dx[i], y + f.dy[i]), a.data()[i])
-                })
-                .collect()
-        } else {
-            b.data()
-                .par_iter()
-                .zip(a.data())
-                .map(|(&v, &a)| squared(v, a))
-                .collect()
-        };
-        pool(&data, w, h)
+    let data: Vec<f32> = if let Some(f) = f {
+        let b = Bilinear::new(b);
+        (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % w) as f32, (i / w) as f32);
+                squared(b.at(x + f.dx[i], y + f.dy[i]), a.data()[i])
+            })
+            .collect()
+    } else {
+        b.data()
+            .par_iter()
+            .zip(a.data())
+            .map(|(&v, &a)| squared(v, a))
+            .collect()
     };
-    // The frames as they are through the flow, against the least residual without it of the
-    // frames as they are and of the locally sharper one blurred by a rung of the ladder.
-    let (plain, moved) = rayon::join(|| sq(a, b, false), || sq(a, b, true));
-    // Share of the residual the flow removes, mapped to a weight 0..1.
-    let weight = |e0: f32, e1: f32| {
-        let removed = if e0 > 0.0 { 1.0 - e1 / e0 } else { 0.0 };
-        ((removed - EXPLAINED) / EXPLAINED).clamp(0.0, 1.0)
-    };
-    let kept: Vec<f32> = plain
-        .par_iter()
-        .zip(&moved)
-        .map(|(e0, e1)| weight(*e0, *e1))
-        .collect();
-    // The least residual, lowered rung by rung, then turned into the weight, only where the
-    // flow is kept: elsewhere the weight is 0 whatever the rungs, the least residual being at
-    // most the plain one (NaN weights do not count as 0). The weight falls as the least
-    // residual does, so a pixel whose weight is already 0 stays 0: a rung's residuals are made
-    // only for the frame some pixel still takes them from, and no rung once none does. Each
-    // frame's rungs are blurred only when first taken.
-    let at: Vec<usize> = (0..w * h).filter(|&i| kept[i] != 0.0).collect();
-    let mut least: Vec<f32> = at.iter().map(|&i| plain[i]).collect();
-    for k in 0..DEFOCUS.len() {
-        let live = |j: usize| weight(least[j], moved[at[j]]) != 0.0;
-        if !(0..at.len()).any(live) {
-            break;
+    pool(&data, w, h)
+}
+
+/// A pair's trust test before its defocus ladder: the pixels where the flow is kept, and there
+/// the least residual without it so far and the residual through it. The ladder, which only
+/// lowers the least residual and so the weight, runs when a field needs it.
+struct Trust {
+    pa: Arc<Pyramid>,
+    pb: Arc<Pyramid>,
+    at: Vec<usize>,
+    least: Vec<f32>,
+    moved: Vec<f32>,
+}
+
+impl Trust {
+    /// Raises `bound` to at least where the pair could surely have moved: the weight before the
+    /// ladder (1 where NaN).
+    fn bound(&self, bound: &mut [f32]) {
+        for ((&i, &l), &m) in self.at.iter().zip(&self.least).zip(&self.moved) {
+            let w = weight(l, m);
+            bound[i] = bound[i].max(if w.is_nan() { 1.0 } else { w });
         }
-        let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
-        let from_a = |j: usize| ea[at[j]] >= eb[at[j]];
-        let takes = |a: bool| (0..at.len()).any(|j| from_a(j) == a && live(j));
-        let (ra, rb) = rayon::join(
-            || takes(true).then(|| sq(pa.rung(k), b, false)),
-            || takes(false).then(|| sq(a, pb.rung(k), false)),
-        );
-        for (j, l) in least.iter_mut().enumerate() {
-            if let Some(r) = if from_a(j) { &ra } else { &rb } {
-                *l = l.min(r[at[j]]);
+    }
+
+    /// Per pixel, where the pair surely moved (0..1, 0 where the flow is not kept).
+    fn sure(mut self) -> Vec<f32> {
+        let (pa, pb) = (&self.pa, &self.pb);
+        let (a, b) = (&pa.levels[0], &pb.levels[0]);
+        let (at, least, moved) = (&self.at, &mut self.least, &self.moved);
+        // The least residual, lowered rung by rung, then turned into the weight. A pixel whose
+        // weight is already 0 stays 0: a rung's residuals are made only for the frame some
+        // pixel still takes them from, and no rung once none does. Each frame's rungs are
+        // blurred only when first taken.
+        for k in 0..DEFOCUS.len() {
+            let live = |j: usize| weight(least[j], moved[j]) != 0.0;
+            if !(0..at.len()).any(live) {
+                break;
+            }
+            let (ea, eb) = rayon::join(|| pa.energy(), || pb.energy());
+            let from_a = |j: usize| ea[at[j]] >= eb[at[j]];
+            let takes = |a: bool| (0..at.len()).any(|j| from_a(j) == a && live(j));
+            let (ra, rb) = rayon::join(
+                || takes(true).then(|| residual(pa.rung(k), b, None)),
+                || takes(false).then(|| residual(a, pb.rung(k), None)),
+            );
+            for (j, l) in least.iter_mut().enumerate() {
+                if let Some(r) = if from_a(j) { &ra } else { &rb } {
+                    *l = l.min(r[at[j]]);
+                }
             }
         }
+        let mut sure = vec![0.0; a.width() * a.height()];
+        for ((&i, &l), &m) in at.iter().zip(least.iter()).zip(moved) {
+            sure[i] = weight(l, m);
+        }
+        sure
     }
-    let mut sure = vec![0.0; w * h];
-    for (&i, l) in at.iter().zip(&least) {
-        sure[i] = weight(*l, moved[i]);
-    }
-    f.dx.par_iter_mut()
-        .zip(f.dy.par_iter_mut())
-        .zip(&kept)
-        .for_each(|((dx, dy), k)| {
-            *dx *= k;
-            *dy *= k;
-        });
-    sure
 }
 
 /// Gaussian blur with NaN (outside the frame) kept out of it and kept NaN.
@@ -746,7 +832,7 @@ mod tests {
     fn flow_recovers_a_shift_and_stays_still_without_one() {
         let a = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64, y as f64));
         let b = Plane::from_fn(160, 120, 1, |x, y, _| tex(x as f64 - 1.3, y as f64 + 0.6));
-        let (a, b) = (Pyramid::new(&a), Pyramid::new(&b));
+        let (a, b) = (Arc::new(Pyramid::new(&a)), Arc::new(Pyramid::new(&b)));
         let (f, _) = flow(&a, &b);
         for i in [60 * 160 + 80, 30 * 160 + 40, 90 * 160 + 120] {
             assert!(
