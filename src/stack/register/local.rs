@@ -542,8 +542,8 @@ fn weight(e0: f32, e1: f32) -> f32 {
     ((removed - EXPLAINED) / EXPLAINED).clamp(0.0, 1.0)
 }
 
-/// `b` (through the flow `f`, if given) squared minus `a`, pooled over the window; NaN (outside
-/// a frame) counts 0.
+/// `b` (through the flow `f`, if given) minus `a`, squared and pooled over the window; NaN
+/// (outside a frame) counts 0.
 fn residual(a: &Plane, b: &Plane, f: Option<&Flow>) -> Vec<f32> {
     let (w, h) = (a.width(), a.height());
     let squared = |v: f32, a: f32| {
