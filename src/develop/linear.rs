@@ -166,6 +166,25 @@ impl Filtered {
     /// row's own in the middle) are `w`: the same operations in the same order as [`cheap`],
     /// so the same values.
     fn run(&mut self, w: [&[f32]; 5], n: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the CPU has AVX, checked just above.
+            return unsafe { self.run_avx(w, n) };
+        }
+        self.run_body(w, n)
+    }
+
+    /// `run_body` compiled for AVX: eight lanes wide instead of the x86-64 baseline's four,
+    /// the same operations in the same order, so the same values.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    unsafe fn run_avx(&mut self, w: [&[f32]; 5], n: usize) {
+        self.run_body(w, n)
+    }
+
+    /// [`Filtered::run`], inlined so that each caller compiles it for its own target features.
+    #[inline(always)]
+    fn run_body(&mut self, w: [&[f32]; 5], n: usize) {
         for v in [
             &mut self.g_at_rb,
             &mut self.from_row,
@@ -250,10 +269,18 @@ pub fn cheap_over<T: Send>(
                             _ => [&f.from_col, own, &f.from_row],
                         }
                     };
-                    let phases = [phase(0), phase(1)];
+                    let [even, odd] = [phase(0), phase(1)];
                     for (c, line) in rgb.iter_mut().enumerate() {
-                        line.clear();
-                        line.extend((0..rect.width).map(|xx| phases[xx & 1][c][xx]));
+                        line.resize(rect.width, 0.0);
+                        let pairs = line
+                            .chunks_mut(2)
+                            .zip(even[c].chunks(2).zip(odd[c].chunks(2)));
+                        for (pair, (e, o)) in pairs {
+                            pair[0] = e[0];
+                            if let (Some(v), Some(&o)) = (pair.get_mut(1), o.get(1)) {
+                                *v = o;
+                            }
+                        }
                     }
                     pixels([&rgb[0][..], &rgb[1][..], &rgb[2][..]], row);
                 }
