@@ -296,39 +296,6 @@ fn a_label_where_a_frame_does_not_reach_is_no_near_object() {
     assert_eq!(moved, 0);
 }
 
-/// A plain patch of the background, labelled with the frame ties go to (the nearest here: no
-/// frame has texture there, so the label says nothing of depth), is no near object: nothing beside it is
-/// taken out, while the disc's halo still is.
-#[test]
-fn a_patch_labelled_nearer_by_a_tie_is_no_near_object() {
-    let (mut frames, _) = scene(Light::Linear);
-    let before = frames.clone();
-    let mut labels = exact_labels();
-    let patch = |i: usize| (8..24).contains(&(i % SIZE)) && (8..24).contains(&(i / SIZE));
-    let mut textured = vec![true; SIZE * SIZE];
-    for i in (0..SIZE * SIZE).filter(|&i| patch(i)) {
-        labels[i] = 0;
-        textured[i] = false;
-    }
-    let out = unmix(
-        &mut frames,
-        &mut labels,
-        &textured,
-        0,
-        &full(3),
-        Order::NearestFirst,
-        true,
-        &NoProgress,
-    );
-    assert!(out.changed[2] > 0, "the disc's halo is still taken out");
-    // The background within 12 px of the patch, beyond the disc's spill.
-    let beside = (0..SIZE * SIZE).filter(|&i| (0..36).contains(&(i % SIZE)) && i / SIZE < 36);
-    let moved = beside
-        .filter(|&i| pixel(&frames[2], i) != pixel(&before[2], i))
-        .count();
-    assert_eq!(moved, 0);
-}
-
 /// The same haloed scene with an order its edges did not tell: left exactly as it is, labels
 /// too, and the log says why.
 #[test]
