@@ -232,6 +232,7 @@ fn fuse_from<T: Sample>(
                     &mut frames,
                     &mut labels,
                     &textured,
+                    reference as u8,
                     coverage,
                     order.order,
                     params.label_repair,

@@ -87,17 +87,19 @@ pub struct Settled {
     pub pixels: usize,
 }
 
-/// Gives each flat region of `labels` (the pixels `textured` leaves out, as the labelling's
-/// focus measure found them) the frame that shows its outline crisp, where that frame is clear
-/// and nearer than the frame labelled around it (see the module's doc). `depth_of` maps a frame
-/// to its rank along the focus axis, 0 nearest.
+/// Gives each flat region of `labels` (the pixels `told` leaves out: on entry, where the
+/// labelling's focus measure found no texture) the frame that shows its outline crisp, where
+/// that frame is clear and nearer than the frame labelled around it (see the module's doc), and
+/// marks the pixels it labels in `told`: their labels now say something of depth. `depth_of`
+/// maps a frame to its rank along the focus axis, 0 nearest.
 pub fn settle<T: Sample>(
     frames: &[Image<T>],
     coverage: &[Coverage],
     labels: &mut [u8],
-    textured: &[bool],
+    told: &mut [bool],
     depth_of: &(dyn Fn(usize) -> usize + Sync),
 ) -> Settled {
+    let textured = &*told;
     let Some(f0) = frames.first() else {
         return Settled::default();
     };
@@ -120,9 +122,50 @@ pub fn settle<T: Sample>(
         for p in pixels {
             settled.pixels += usize::from(labels[p] != k);
             labels[p] = k;
+            told[p] = true;
         }
     }
     settled
+}
+
+/// `told` (false where no frame has texture and no repair settled the label) with the flat
+/// pixels whose label still says something of depth marked: all but those labelled `tie`, the
+/// frame the labelling gives where every frame ties, [`MIN_STEP`] planes nearer than the label
+/// most of the told pixels around their region hold. There the label is the tie's on a plain
+/// patch of what lies around it: taken for a near object, its "halo" would be taken out of the
+/// background around it. A plain near object whose rim holds a farther label keeps its labels
+/// when they are another frame's, as where the labelling found its depth by the blur of its
+/// edges.
+pub fn tied_nearer(
+    told: &[bool],
+    labels: &[u8],
+    tie: u8,
+    w: usize,
+    h: usize,
+    depth_of: &(dyn Fn(usize) -> usize + Sync),
+) -> Vec<bool> {
+    let flat = Flat {
+        textured: told,
+        labels,
+        w,
+        h,
+    };
+    let mut out = told.to_vec();
+    let mut seen = vec![0; w * h];
+    let mut stack = Vec::new();
+    for seed in 0..w * h {
+        if told[seed] || seen[seed] != 0 {
+            continue;
+        }
+        // Once to find the label around the region, once to mark its pixels.
+        let rim = flat.walk(seed, &mut seen, 1, &mut stack, |_| {});
+        let rim = rim.map(|r| depth_of(r as usize));
+        flat.walk(seed, &mut seen, 2, &mut stack, |p| {
+            let nearer = |r| depth_of(tie as usize) + (MIN_STEP as usize) <= r;
+            out[p] = labels[p] != tie || !rim.is_some_and(nearer);
+        });
+    }
+    out
 }
 
 /// A flat region worth deciding: one of its pixels, its bounding box and the label most of the
@@ -137,38 +180,74 @@ struct Region {
 /// The 4-connected regions of at least [`MIN_AREA`] pixels, within a box of at most a
 /// [`LARGEST`]th of the frame, that `textured` leaves out.
 fn flat_regions(textured: &[bool], labels: &[u8], w: usize, h: usize) -> Vec<Region> {
-    let mut seen = vec![false; w * h];
+    let flat = Flat {
+        textured,
+        labels,
+        w,
+        h,
+    };
+    let mut seen = vec![0; w * h];
     let mut stack = Vec::new();
-    let mut around = [0u32; 256];
     let mut regions = Vec::new();
     for seed in 0..w * h {
-        if textured[seed] || seen[seed] {
+        if textured[seed] || seen[seed] != 0 {
             continue;
         }
-        seen[seed] = true;
-        stack.push(seed);
         let (mut area, mut xs, mut ys) = (0, seed % w..seed % w + 1, seed / w..seed / w + 1);
-        while let Some(p) = stack.pop() {
+        let rim = flat.walk(seed, &mut seen, 1, &mut stack, |p| {
             area += 1;
             let (x, y) = (p % w, p / w);
             xs = xs.start.min(x)..xs.end.max(x + 1);
             ys = ys.start.min(y)..ys.end.max(y + 1);
-            for_neighbours(p, w, h, |q| {
-                if textured[q] {
-                    around[labels[q] as usize] += 1;
-                } else if !seen[q] {
-                    seen[q] = true;
-                    stack.push(q);
-                }
-            });
-        }
-        let rim = (0..256).max_by_key(|&l| around[l]).unwrap_or(0) as u8;
-        around.fill(0);
-        if area >= MIN_AREA && xs.len() * ys.len() <= w * h / LARGEST {
+        });
+        // Nothing is textured around a region only when it is the whole frame.
+        if let Some(rim) =
+            rim.filter(|_| area >= MIN_AREA && xs.len() * ys.len() <= w * h / LARGEST)
+        {
             regions.push(Region { seed, xs, ys, rim });
         }
     }
     regions
+}
+
+/// The pixels `textured` leaves out of a `w`×`h` label map, walked a region at a time.
+struct Flat<'a> {
+    textured: &'a [bool],
+    labels: &'a [u8],
+    w: usize,
+    h: usize,
+}
+
+impl Flat<'_> {
+    /// Runs `visit` on each pixel of the 4-connected flat region that holds `seed`, each once:
+    /// those `seen` marks below `mark` (then marked with it), so a region is walked again with a
+    /// higher mark. Returns the label most of the textured pixels around the region hold
+    /// (counted once for each neighbour inside), if any.
+    fn walk(
+        &self,
+        seed: usize,
+        seen: &mut [u8],
+        mark: u8,
+        stack: &mut Vec<usize>,
+        mut visit: impl FnMut(usize),
+    ) -> Option<u8> {
+        let mut around = [0u32; 256];
+        seen[seed] = mark;
+        stack.push(seed);
+        while let Some(p) = stack.pop() {
+            visit(p);
+            for_neighbours(p, self.w, self.h, |q| {
+                if self.textured[q] {
+                    around[self.labels[q] as usize] += 1;
+                } else if seen[q] < mark {
+                    seen[q] = mark;
+                    stack.push(q);
+                }
+            });
+        }
+        let rim = (0..256).max_by_key(|&l| around[l]).unwrap_or(0);
+        (around[rim] > 0).then_some(rim as u8)
+    }
 }
 
 /// Runs `f` on each 4-neighbour of pixel `p` of a `w`×`h` grid.
@@ -616,7 +695,7 @@ mod tests {
 
     fn settle_labels(frames: &[Image<u8>], labels: &mut [u8]) -> Settled {
         let cover = vec![Coverage::full(SIZE, SIZE); frames.len()];
-        settle(frames, &cover, labels, &textured(), &|f| f)
+        settle(frames, &cover, labels, &mut textured(), &|f| f)
     }
 
     /// A compact flat patch is a region to decide; a thin one of the same area sprawling
@@ -713,11 +792,43 @@ mod tests {
             .collect();
         let before = labels.clone();
         let cover = vec![Coverage::full(SIZE, SIZE); frames.len()];
-        let textured: Vec<bool> = (0..SIZE * SIZE)
+        let mut textured: Vec<bool> = (0..SIZE * SIZE)
             .map(|i| radius(i % SIZE, i / SIZE) > 10.0)
             .collect();
-        let settled = settle(&frames, &cover, &mut labels, &textured, &|f| f);
+        let settled = settle(&frames, &cover, &mut labels, &mut textured, &|f| f);
         assert_eq!(settled, Settled::default());
         assert_eq!(labels, before);
+    }
+
+    /// A flat patch of a far background labelled with the tie's frame [`MIN_STEP`] planes
+    /// nearer than the texture around it is told nothing of depth; one labelled a plane nearer
+    /// keeps its label's word, and so do one labelled with another frame and a plain near
+    /// object whose textured rim is labelled with it.
+    #[test]
+    fn only_a_flat_patch_tied_well_nearer_than_its_rim_is_untold() {
+        let square = |xs: Range<usize>, ys: Range<usize>| {
+            move |i: usize| xs.contains(&(i % SIZE)) && ys.contains(&(i / SIZE))
+        };
+        let (tied, close, other) = (
+            square(8..24, 8..24),
+            square(40..56, 8..24),
+            square(8..24, 40..56),
+        );
+        let (object, rim) = (square(62..78, 62..78), square(60..80, 60..80));
+        let labels: Vec<u8> = (0..SIZE * SIZE)
+            .map(|i| match i {
+                _ if tied(i) || rim(i) => 1,
+                _ if close(i) => 3,
+                _ if other(i) => 0,
+                _ => 4,
+            })
+            .collect();
+        let told: Vec<bool> = (0..SIZE * SIZE)
+            .map(|i| !(tied(i) || close(i) || other(i) || object(i)))
+            .collect();
+        let out = tied_nearer(&told, &labels, 1, SIZE, SIZE, &|f| f);
+        for (i, &told) in out.iter().enumerate() {
+            assert_eq!(told, !tied(i), "pixel {i}");
+        }
     }
 }

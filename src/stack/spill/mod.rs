@@ -131,7 +131,7 @@ pub fn working_bytes(frames: usize, width: usize, height: usize, channels: usize
     let f = reduction(width, height);
     let reduced = width.div_ceil(f) * height.div_ceil(f);
     let plane = 4 * reduced;
-    let held = plane * frames * channels + 8 * width * height;
+    let held = plane * frames * channels + 9 * width * height;
     let refine = plane * 2 * channels * frames;
     let fit = plane * (3 * frames + 3 * (channels + 1)) + reduced * frames;
     held + refine.max(fit)
@@ -144,9 +144,10 @@ fn reduction(width: usize, height: usize) -> usize {
         .expect("a factor as large as the image fits")
 }
 
-/// Un-mixes every frame in place, given the label map, where the labelling found texture and
-/// the stack's focus order. With `repair`, the label repairs run first ([`super::repair`]): the
-/// labels of a near object's mislabelled edge move to its frame. Reports its own stage,
+/// Un-mixes every frame in place, given the label map, where the labelling found texture, the
+/// frame it gives where every frame ties (`fallback`) and the stack's focus order. With
+/// `repair`, the label repairs run first ([`super::repair`]): the labels of a near object's
+/// mislabelled edge move to its frame. Reports its own stage,
 /// [`Stage::Spill`], a step for each repair and one per frame reduced, fitted (in each light)
 /// and un-mixed: its work grows with the frames and their depth steps, and a watchdog waiting
 /// on progress must see it move.
@@ -155,10 +156,12 @@ fn reduction(width: usize, height: usize) -> usize {
 /// occlusion edges tell no order shows none to take out. Un-mixed on an assumed order, the fit
 /// follows whatever the label boundaries happen to be (σ that follow no focal axis and swing
 /// with small changes of the labels) and leaves dark blotches where it does not hold.
+#[allow(clippy::too_many_arguments)]
 pub fn unmix<T: Sample>(
     frames: &mut [Image<T>],
     labels: &mut [u8],
     textured: &[bool],
+    fallback: u8,
     coverage: &[Coverage],
     order: Order,
     repair: bool,
@@ -183,11 +186,15 @@ pub fn unmix<T: Sample>(
     // Settle flat regions, reduce, find the steps' sides and relabel, fit in two lights, un-mix:
     // see `fit` and the loop below for the steps.
     progress.stage(Stage::Spill, 4 * n + 2);
+    // Where the labels say something of depth: the labelling's texture, the flat regions the
+    // repair settles, and the flat pixels not given the tie's frame nearer than their rim.
+    let mut told = textured.to_vec();
     let settled = repair.then(|| {
-        flat_regions::settle(frames, coverage, labels, textured, &|f| {
+        flat_regions::settle(frames, coverage, labels, &mut told, &|f| {
             order.depth_of(f, n)
         })
     });
+    let told = flat_regions::tied_nearer(&told, labels, fallback, w, h, &|f| order.depth_of(f, n));
     progress.advance(1);
     // Everything below works on depth ranks, 0 nearest, and maps back to frame indices.
     let frame_of = |d: usize| order.frame_at(d, n);
@@ -202,8 +209,9 @@ pub fn unmix<T: Sample>(
         .collect();
     let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
     let everywhere = Coverage::intersection(coverage);
-    let told = evidenced(depth.clone(), &everywhere, w, n);
-    let sides = depth_steps::sides(frames, coverage, &frame_of, &told, &reduced, factor);
+    let evidence = |p: usize| told[p] && everywhere.covers(p % w, p / w);
+    let steps = evidenced(depth.clone(), &evidence, w, n);
+    let sides = depth_steps::sides(frames, coverage, &frame_of, &steps, &reduced, factor);
     if let Some(settled) = settled {
         let relabelled = depth_steps::relabel(&mut depth, &sides);
         for (l, &d) in labels.iter_mut().zip(&depth) {
@@ -215,7 +223,7 @@ pub fn unmix<T: Sample>(
         });
     }
     progress.advance(1);
-    let objects = evidenced(sides.objects, &everywhere, w, n);
+    let objects = evidenced(sides.objects, &evidence, w, n);
     let masks = region_masks(&objects, w, h, n, factor);
     // The fit needs only luma, in both lights; the colour is decoded to linear light only when
     // that is the light chosen, so one light's reduced frames are held, never both.
@@ -253,11 +261,10 @@ pub fn unmix<T: Sample>(
         let groups = blurs.of(l, &mixed, &masks, factor);
         if !groups.is_empty() {
             let spill = Spill::sum(&groups, factor);
-            // Next to a nearer region, or labelled nearer where not every frame reaches (the
-            // label says nothing of depth there, so nothing is known to take out).
+            // Next to a nearer region, or labelled nearer where the label says nothing of
+            // depth (see `evidenced`: nothing is known to take out there).
             let is_guarded = |p: usize| {
-                nearest[p] as usize + 2 <= l
-                    || (depth[p] as usize + 2 <= l && !everywhere.covers(p % w, p / w))
+                nearest[p] as usize + 2 <= l || (depth[p] as usize + 2 <= l && !evidence(p))
             };
             out.changed[frame_of(l)] = spill.apply(&mut frames[frame_of(l)], &is_guarded, light);
         }
@@ -275,16 +282,26 @@ pub fn unmix<T: Sample>(
     out
 }
 
-/// `objects` (depth ranks) with the pixels `everywhere` leaves out taken as the farthest depth,
-/// no near object: there the labelling could choose only among the frames that reach the pixel
-/// (at the border, often the reference alone), so a label there says nothing of depth, and a
-/// strip of the reference's label along a border of far labels would be taken for a near
-/// object whose spill is taken out of the frames around it.
-fn evidenced(mut objects: Vec<u8>, everywhere: &Coverage, w: usize, n: usize) -> Vec<u8> {
+/// `objects` (depth ranks) with the pixels `evidence` leaves out taken as the farthest depth,
+/// no near object, since a label there says nothing of depth:
+/// - where not every frame reaches, the labelling could choose only among the frames that reach
+///   the pixel (at the border, often the reference alone), and a strip of the reference's label
+///   along a border of far labels would be taken for a near object;
+/// - where no frame has texture, the label repair did not settle the region and its label is
+///   the tie's frame, [`MIN_STEP`](super::order::MIN_STEP) planes nearer than the one around
+///   it ([`flat_regions::tied_nearer`]): that plain patch of the background would be taken for
+///   a near object, and its "spill" taken out of the background around it, where there is no
+///   depth step.
+fn evidenced(
+    mut objects: Vec<u8>,
+    evidence: &(dyn Fn(usize) -> bool + Sync),
+    w: usize,
+    n: usize,
+) -> Vec<u8> {
     let farthest = (n - 1) as u8;
     objects.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, d) in row.iter_mut().enumerate() {
-            if !everywhere.covers(x, y) {
+            if !evidence(y * w + x) {
                 *d = farthest;
             }
         }
