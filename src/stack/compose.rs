@@ -9,7 +9,8 @@
 //!   label region this is a plain copy of the labelled frame (no noise picked from other frames);
 //!   across a seam the transition is multiband, so no seam shows, and at an occlusion edge the
 //!   crisp edge's coefficients win over the other frame's defocus spill. Given the stack's focus
-//!   order, a frame focused farther than a pixel's label never gives that pixel its finest band:
+//!   order, a frame focused farther than a pixel's label never gives that pixel its finest band
+//!   where that label tells depth (see [`KeepOut`]):
 //!   there it shows the near object defocused and the background through its edge, texture that
 //!   would win the contrast choice over the near object's own clean edge. Nor does a frame
 //!   give its finest band where it does not reach: it holds the reference's pixels there (see
@@ -40,7 +41,18 @@ pub enum Select<'a> {
     /// only an order the occlusion edges told, since on a guessed one the rule would keep the
     /// nearer frame out instead, and a stack without such edges has no spill to keep out; and
     /// where each frame reaches (`None`: everywhere).
-    Labels(&'a [u8], usize, Option<Order>, Option<Reached<'a>>),
+    Labels(&'a [u8], usize, Option<KeepOut<'a>>, Option<Reached<'a>>),
+}
+
+/// The focus order by which farther frames are kept out of a nearer label's finest band, and
+/// where a label says something of depth (`None`: everywhere). A label that says nothing of
+/// depth (a plain patch given the tie's frame, a pixel not every frame reaches) keeps no frame
+/// out: there the rule would only take the sharper frame's edge away, where the spill removal
+/// found no near object to keep a halo of out.
+#[derive(Clone, Copy)]
+pub struct KeepOut<'a> {
+    pub order: Order,
+    pub told: Option<&'a [bool]>,
 }
 
 /// Where each frame reaches, for the rows composed.
@@ -109,8 +121,8 @@ impl FrameBuffers {
                 if let Some(reached) = reached {
                     out_of_reach(r.data_mut(), w, labels, reached, i);
                 }
-                if let Some(order) = order.filter(|o| *o != Order::Unknown) {
-                    keep_out_of_nearer(r.data_mut(), labels, order, i, frames);
+                if let Some(keep) = order.filter(|k| k.order != Order::Unknown) {
+                    keep_out_of_nearer(r.data_mut(), labels, keep, i, frames);
                 }
             }
         }
@@ -153,16 +165,21 @@ fn out_of_reach(reach: &mut [f32], w: usize, labels: &[u8], reached: &Reached, f
 }
 
 /// Zeroes `reach`, where frame `frame` may give the finest band, at pixels labelled with a frame
-/// focused nearer than it. Only the finest band: the coarser bands, shared by the pixels on both
-/// sides of a step, are better taken from whichever frame has the most contrast.
-fn keep_out_of_nearer(reach: &mut [f32], labels: &[u8], order: Order, frame: usize, n: usize) {
-    let depth = order.depth_of(frame, n);
-    let nearer: Vec<bool> = (0..n).map(|l| order.depth_of(l, n) < depth).collect();
-    reach.par_iter_mut().zip(labels).for_each(|(r, &l)| {
-        if nearer[l as usize] {
-            *r = 0.0;
-        }
-    });
+/// focused nearer than it, where that label tells depth. Only the finest band: the coarser
+/// bands, shared by the pixels on both sides of a step, are better taken from whichever frame
+/// has the most contrast.
+fn keep_out_of_nearer(reach: &mut [f32], labels: &[u8], keep: KeepOut, frame: usize, n: usize) {
+    let depth = keep.order.depth_of(frame, n);
+    let nearer: Vec<bool> = (0..n).map(|l| keep.order.depth_of(l, n) < depth).collect();
+    reach
+        .par_iter_mut()
+        .enumerate()
+        .zip(labels)
+        .for_each(|((p, r), &l)| {
+            if nearer[l as usize] && keep.told.is_none_or(|t| t[p]) {
+                *r = 0.0;
+            }
+        });
 }
 
 /// The fused image and, per pixel, the frame its finest band came from.
@@ -209,7 +226,10 @@ pub fn compose<T: Sample>(
             Select::Labels(labels, _, order, reached) => Select::Labels(
                 &labels[e0 * w..e1 * w],
                 levels,
-                order,
+                order.map(|k| KeepOut {
+                    told: k.told.map(|t| &t[e0 * w..e1 * w]),
+                    ..k
+                }),
                 reached.map(|r| Reached { row: e0, ..r }),
             ),
         };
@@ -506,8 +526,9 @@ mod tests {
         let frames = [near, far];
         let labels: Vec<u8> = (0..1200).map(|i| (i % 40 >= 20) as u8).collect();
         // The checkerboard's amplitude on the near object's side, next to the edge.
-        let texture_where = |order, reached| {
-            let select = Select::Labels(&labels, 8, order, reached);
+        let texture_where = |order: Option<Order>, told, reached| {
+            let keep = order.map(|order| KeepOut { order, told });
+            let select = Select::Labels(&labels, 8, keep, reached);
             let (out, _) = compose(&frames, select, usize::MAX, &NoProgress);
             (10..20)
                 .flat_map(|y| (16..19).map(move |x| (x, y)))
@@ -515,12 +536,15 @@ mod tests {
                 .max()
                 .unwrap()
         };
-        let texture = |order| texture_where(order, None);
+        let texture = |order| texture_where(order, None, None);
         assert!(texture(Some(Order::NearestFirst)) <= 4);
         // Without the order, or with frame 1 the nearer, its texture is chosen there.
         assert!(texture(None) >= 20);
         assert!(texture(Some(Order::FarthestFirst)) >= 20);
         assert!(texture(Some(Order::Unknown)) >= 20);
+        // Nor where the near label says nothing of depth.
+        let untold: Vec<bool> = (0..1200).map(|i| i % 40 >= 20).collect();
+        assert!(texture_where(Some(Order::NearestFirst), Some(&untold), None) >= 20);
         // Nor, without the order, where frame 1 does not reach.
         let mut coverage = vec![Coverage::full(40, 30); 2];
         coverage[1].spans.fill((20, 40));
@@ -528,7 +552,7 @@ mod tests {
             coverage: &coverage,
             row: 0,
         };
-        assert!(texture_where(None, Some(reached)) <= 4);
+        assert!(texture_where(None, None, Some(reached)) <= 4);
     }
 
     #[test]

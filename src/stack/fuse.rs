@@ -1,7 +1,7 @@
 //! The fusion entry point: a stack in, one all-in-focus image and its label map out.
 
 use super::align::{estimate_exposure, warp_frame_into, Coverage, Exposure, Rect};
-use super::compose::{compose, Reached, Select};
+use super::compose::{compose, KeepOut, Reached, Select};
 use super::graphcut::{label_stack, Labelled};
 use super::image::{Image, Sample};
 use super::memory::{self, Plan, Stack};
@@ -241,6 +241,7 @@ fn fuse_from<T: Sample>(
                 lap(Stage::Spill, &mut timings);
                 go_on(progress)?;
             }
+            let told = spill.as_mut().and_then(|s| s.told.take());
             if lazy.is_some() {
                 develop(&mut frames, Some((&labels, &textured)))?;
                 lap(Stage::Develop, &mut timings);
@@ -250,7 +251,10 @@ fn fuse_from<T: Sample>(
                 Select::Labels(
                     &labels,
                     params.graphcut.blend_levels,
-                    params.spill.then_some(order.order),
+                    params.spill.then_some(KeepOut {
+                        order: order.order,
+                        told: told.as_deref(),
+                    }),
                     Some(Reached { coverage, row: 0 }),
                 ),
                 plan.band_rows,

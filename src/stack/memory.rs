@@ -151,8 +151,10 @@ pub fn plan(s: &Stack, p: &FuseParams) -> Plan {
     // Smaller bands than their margin would spend most of the compose on the margins.
     let least = margin;
     let per_row = bytes_per_row(s.width, s.channels, s.sample_bytes);
-    // The label map, the output image and the choice map, beside the frames.
-    let compose_base = frames + 2 * px + frame;
+    // The label map, the output image and the choice map, beside the frames; after taking the
+    // spill out, where the labels tell depth (`spill::Unmixed::told`).
+    let told = (graphcut && p.spill) as usize * px;
+    let compose_base = frames + 2 * px + told + frame;
     let compose =
         |rows: usize| compose_base + rows.saturating_add(2 * margin).min(s.height) * per_row;
     let threads = rayon::current_num_threads().min(s.frames.max(1));

@@ -64,6 +64,10 @@ pub struct Unmixed {
     /// `None` when no pair could be fitted (no depth steps, or regions too small) or the fits
     /// did not tell the light (`unclear_light`).
     pub light: Option<Light>,
+    /// Where the labels say something of depth (see `evidenced`), for the compose's rule that
+    /// keeps farther frames out of a nearer label's finest band; `None` where nothing was
+    /// looked at (an untold order, too few frames). The caller takes it.
+    pub told: Option<Vec<bool>>,
     pub pairs: Vec<Pair>,
     /// Per frame, the pixels changed.
     pub changed: Vec<usize>,
@@ -170,6 +174,7 @@ pub fn unmix<T: Sample>(
     let n = frames.len();
     let mut out = Unmixed {
         light: None,
+        told: None,
         pairs: Vec::new(),
         changed: vec![0; n],
         filled: 0,
@@ -210,18 +215,23 @@ pub fn unmix<T: Sample>(
     let mut depth: Vec<u8> = labels.iter().map(|&l| frame_of(l as usize) as u8).collect();
     let everywhere = Coverage::intersection(coverage);
     let evidence = |p: usize| told[p] && everywhere.covers(p % w, p / w);
+    let mut said: Vec<bool> = (0..w * h).into_par_iter().map(evidence).collect();
     let steps = evidenced(depth.clone(), &evidence, w, n);
     let sides = depth_steps::sides(frames, coverage, &frame_of, &steps, &reduced, factor);
     if let Some(settled) = settled {
         let relabelled = depth_steps::relabel(&mut depth, &sides);
-        for (l, &d) in labels.iter_mut().zip(&depth) {
-            *l = frame_of(d as usize) as u8;
+        // A pixel relabelled by the colour at a step tells its depth by that colour.
+        for ((l, &d), said) in labels.iter_mut().zip(&depth).zip(&mut said) {
+            let to = frame_of(d as usize) as u8;
+            *said |= to != *l;
+            *l = to;
         }
         out.repaired = Some(Repaired {
             settled,
             relabelled,
         });
     }
+    out.told = Some(said);
     progress.advance(1);
     let objects = evidenced(sides.objects, &evidence, w, n);
     let masks = region_masks(&objects, w, h, n, factor);
