@@ -8,7 +8,6 @@
 
 use super::image::{Image, Sample};
 use super::transform::{Affine, Raster, Warp};
-use crate::base::avx::with_avx;
 use rayon::prelude::*;
 
 /// Per row, the half-open span of pixels a warped frame covers: an affine footprint is convex,
@@ -679,18 +678,30 @@ impl<const C: usize> Rows<'_, C> {
         row: &mut [T],
         fallback: &[T],
     ) -> (u32, u32) {
-        with_avx(
-            #[inline(always)]
-            |avx| match (avx, L) {
-                // SAFETY: `avx`: the CPU has AVX.
-                #[cfg(target_arch = "x86_64")]
-                (true, 4) => unsafe { self.warp_pairs_avx(y, row, fallback) },
-                // SAFETY: as above.
-                #[cfg(target_arch = "x86_64")]
-                (true, 8) => unsafe { self.warp_octets_avx(y, row, fallback) },
-                _ => self.warp_body::<T, L>(y, row, fallback),
-            },
-        )
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the CPU has AVX, checked just above.
+            return unsafe {
+                match L {
+                    4 => self.warp_pairs_avx(y, row, fallback),
+                    8 => self.warp_octets_avx(y, row, fallback),
+                    _ => self.warp_avx::<T, L>(y, row, fallback),
+                }
+            };
+        }
+        self.warp_body::<T, L>(y, row, fallback)
+    }
+
+    /// `warp_body` compiled for AVX.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    unsafe fn warp_avx<T: Sample, const L: usize>(
+        &self,
+        y: usize,
+        row: &mut [T],
+        fallback: &[T],
+    ) -> (u32, u32) {
+        self.warp_body::<T, L>(y, row, fallback)
     }
 
     #[inline(always)]
@@ -700,44 +711,31 @@ impl<const C: usize> Rows<'_, C> {
         row: &mut [T],
         fallback: &[T],
     ) -> (u32, u32) {
-        let mut span = (row.len() / C, 0);
+        let w = row.len() / C;
+        let mut span = (w, 0);
         // The unused lane's sum, kept: a compiler that sees the lane unused splits every four-lane
         // tap into a two-lane and a one-lane one, which is slower.
         let mut pad = 0.0f32;
-        for (x, point) in self.to_warp(y, row.len() / C) {
-            let out = &mut row[x * C..][..C];
-            if let Some(acc) = self.pixel::<T, L>(self.taps(point), x, &mut span, out, fallback) {
+        let at = self.raster.row(y);
+        let mut x = 0;
+        while x < w {
+            if let Some(run) = self.far_run(x, y) {
+                x += run;
+                continue;
+            }
+            let (point, out) = (at(x), &mut row[x * C..][..C]);
+            x += 1;
+            if self.refine.is_some_and(|cells| !cells.near(point)) {
+                continue;
+            }
+            let acc = self.pixel::<T, L>(self.taps(point), x - 1, &mut span, out, fallback);
+            if let Some(acc) = acc {
                 pad += acc[L - 1];
                 self.store(&acc, out);
             }
         }
         std::hint::black_box(pad);
         Self::covered(span)
-    }
-
-    /// The pixels of output row `y`, `w` wide, to warp, with their points in the frame: every
-    /// pixel, or refining, those near a patch.
-    #[inline(always)]
-    fn to_warp(&self, y: usize, w: usize) -> impl Iterator<Item = (usize, (f64, f64))> + '_ {
-        let at = self.raster.row(y);
-        let mut x = 0;
-        std::iter::from_fn(
-            #[inline(always)]
-            move || {
-                while x < w {
-                    if let Some(run) = self.far_run(x, y) {
-                        x += run;
-                        continue;
-                    }
-                    let point = at(x);
-                    x += 1;
-                    if self.refine.is_none_or(|cells| cells.near(point)) {
-                        return Some((x - 1, point));
-                    }
-                }
-                None
-            },
-        )
     }
 
     /// Refining, the pixels from `x` on (at the start of a run) that no patch reaches, to be
@@ -951,8 +949,21 @@ impl<const C: usize> Rows<'_, C> {
         use std::arch::x86_64::*;
         const L: usize = 8;
         let (src, fw) = (self.src, self.size.0);
-        let mut span = (row.len() / C, 0);
-        for (x, point) in self.to_warp(y, row.len() / C) {
+        let w = row.len() / C;
+        let mut span = (w, 0);
+        let at = self.raster.row(y);
+        let mut x = 0;
+        while x < w {
+            if let Some(run) = self.far_run(x, y) {
+                x += run;
+                continue;
+            }
+            let point = at(x);
+            x += 1;
+            if self.refine.is_some_and(|cells| !cells.near(point)) {
+                continue;
+            }
+            let x = x - 1;
             let out = &mut row[x * C..][..C];
             let taps = self.taps(point);
             let Taps::Inside { at: base, kx, ky } = taps else {

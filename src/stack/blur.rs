@@ -7,7 +7,6 @@
 //! so it vectorises.
 
 use super::image::{Image, Plane, Sample};
-use crate::base::avx::with_avx;
 use rayon::prelude::*;
 use std::cell::RefCell;
 
@@ -269,16 +268,30 @@ impl<S: Rows> Rows for RowBlur<'_, S> {
 /// wide, so eight independent add chains hide the add latency: 32 pixels with SSE2 (the x86-64
 /// baseline), 64 with AVX, which is worth detecting at run time (a quarter less time).
 fn symmetric_sum(out: &mut [f32], src: &[f32], half: &[f32], c: usize, lo: &[usize], hi: &[usize]) {
-    with_avx(
-        #[inline(always)]
-        |avx| match avx {
-            true => symmetric_sum_body::<64>(out, src, half, c, lo, hi),
-            false => symmetric_sum_body::<32>(out, src, half, c, lo, hi),
-        },
-    )
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX, checked just above.
+        return unsafe { symmetric_sum_avx(out, src, half, c, lo, hi) };
+    }
+    symmetric_sum_body::<32>(out, src, half, c, lo, hi)
 }
 
-/// `symmetric_sum` with blocks of `LANES` pixels.
+/// `symmetric_sum_body` compiled for AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn symmetric_sum_avx(
+    out: &mut [f32],
+    src: &[f32],
+    half: &[f32],
+    c: usize,
+    lo: &[usize],
+    hi: &[usize],
+) {
+    symmetric_sum_body::<64>(out, src, half, c, lo, hi)
+}
+
+/// `symmetric_sum` with blocks of `LANES` pixels; inlined so each caller compiles it for its own
+/// target features.
 #[inline(always)]
 fn symmetric_sum_body<const LANES: usize>(
     out: &mut [f32],
