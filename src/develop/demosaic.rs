@@ -165,7 +165,7 @@ pub struct Regions<'a, F> {
 
 /// [`demosaic`] over each frame's rectangles only, exactly as the whole frame's development
 /// gives them before it decodes them: each rectangle is developed with the mosaic around it as
-/// far as an output pixel's value reaches (`PAD`, the border mirrored here), rectangles close
+/// far as an output pixel's value reaches (`REACH`, the border mirrored here), rectangles close
 /// together in one window ([`windows`]), the windows of every frame in one parallel run, the
 /// largest first, so that cores share unequal windows evenly. `pixels` writes a row of output
 /// pixels from their encoded red, green and blue rows, three samples a pixel (decoded, through a
@@ -207,11 +207,12 @@ pub fn demosaic_regions<T: Sample, F: Fn(usize, usize, &mut [f32]) + Sync>(
                 x + mw <= width && y + mh <= height,
                 "region outside the mosaic"
             );
-            // From even coordinates, so the window keeps the pattern's phase; in the
-            // coordinates of the mosaic padded by PAD, so its rows and columns are mirrored
-            // where they reach beyond the mosaic.
-            let (x0, y0) = (x & !1, y & !1);
-            let (ww, wh) = (x + mw - x0 + 2 * PAD, y + mh - y0 + 2 * PAD);
+            // REACH beyond the rectangles on every side, its pattern the one read from its
+            // corner; in the coordinates of the mosaic padded by PAD (even, so a padded
+            // coordinate has the phase of the one it stands for), so its rows and columns are
+            // mirrored where they reach beyond the mosaic.
+            let (x0, y0) = (x + PAD - REACH, y + PAD - REACH);
+            let (ww, wh) = (mw + 2 * REACH, mh + 2 * REACH);
             let inside = PAD.saturating_sub(x0).min(ww)..(PAD + width).saturating_sub(x0).min(ww);
             let taken = spare.lock().unwrap_or_else(PoisonError::into_inner).pop();
             let mut ws: Workspace = taken.unwrap_or_default();
@@ -226,14 +227,15 @@ pub fn demosaic_regions<T: Sample, F: Fn(usize, usize, &mut [f32]) + Sync>(
                     fill(row, mirror(x0 + k, width), &mut line[k..k + 1]);
                 }
             }
-            residual_interpolation(&samples, ww, order, &mut ws);
+            let phase = order.read_from(x0, y0);
+            residual_interpolation(&samples, ww, phase, REACH, &mut ws);
             ws.samples = samples;
             let planes = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
             let cut = members
                 .iter()
                 .map(|&k| {
                     let r = rects[k];
-                    let (dx, dy) = (r.x - x0 + PAD, r.y - y0 + PAD);
+                    let (dx, dy) = (r.x + PAD - x0, r.y + PAD - y0);
                     let mut out = vec![T::default(); r.width * r.height * 3];
                     for (yy, row) in out.chunks_exact_mut(r.width * 3).enumerate() {
                         let at = (yy + dy) * ww + dx;
@@ -267,11 +269,11 @@ pub fn demosaic_regions<T: Sample, F: Fn(usize, usize, &mut [f32]) + Sync>(
 }
 
 /// `rects` grouped into windows, each developed once: two become one where the window around
-/// both, with its halo of `PAD` on every side, costs no more than their two, and no more than a
+/// both, with its halo of `REACH` on every side, costs no more than their two, and no more than a
 /// strip of a `width`-wide frame's whole development (so no more memory). Each window with the
 /// indices of the rectangles it holds.
 fn windows(rects: &[Rect], width: usize) -> Vec<(Rect, Vec<usize>)> {
-    let cost = |r: Rect| (r.width + 2 * PAD) * (r.height + 2 * PAD);
+    let cost = |r: Rect| (r.width + 2 * REACH) * (r.height + 2 * REACH);
     let cap = (width + 2 * PAD) * (STRIP_ROWS + 2 * PAD);
     let union = |a: Rect, b: Rect| {
         let (x, y) = (a.x.min(b.x), a.y.min(b.y));
@@ -330,7 +332,7 @@ fn in_strips(m: &Mosaic, rows: usize) -> Image<f32> {
             let strip = &p.data[i * rows * pw..(i * rows + n + 2 * PAD) * pw];
             let taken = spare.lock().unwrap_or_else(PoisonError::into_inner).pop();
             let mut ws = taken.unwrap_or_default();
-            residual_interpolation(strip, pw, m.order, &mut ws);
+            residual_interpolation(strip, pw, m.order, PAD, &mut ws);
             let rgb = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
             for (y, row) in chunk.chunks_exact_mut(w * 3).enumerate() {
                 let at = (y + PAD) * pw + PAD;
@@ -372,10 +374,16 @@ impl Workspace {
     }
 }
 
-/// Red, green and blue planes from the `w`-wide mosaic `m` (a strip of the padded frame, whose
-/// first row has the pattern's phase), left in `ws.planes` 0, 3 and 2. Values within `REACH` of
-/// the strip's edges are not meaningful.
-fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Workspace) {
+/// Red, green and blue planes from the `w`-wide mosaic `m` of Bayer `order` (a strip of the
+/// padded frame, or a region's window), left in `ws.planes` 0, 3 and 2: their values `margin`
+/// (at least `REACH`) or more inside the edges.
+fn residual_interpolation(
+    m: &[f32],
+    w: usize,
+    order: BayerOrder,
+    margin: usize,
+    ws: &mut Workspace,
+) {
     // Where each colour has samples, as 0 or 1 along even rows and along odd ones.
     let sites = |c: usize| {
         [0, 1].map(|y| {
@@ -390,8 +398,8 @@ fn residual_interpolation(m: &[f32], w: usize, order: BayerOrder, ws: &mut Works
         scratch, planes, ..
     } = ws;
     let [r, g, b, g2] = planes;
-    // Each pass only as far into the halo as the next one reads: the output's margin is PAD.
-    let (last, refit) = (PAD, PAD - GRID_REACH);
+    // Each pass only as far into the halo as the next one reads.
+    let (last, refit) = (margin, margin - GRID_REACH);
     let first = refit - QUINCUNX_REACH;
     directional_green(m, w, order, first - GRID_REACH, scratch, g);
     residual_fill(g, m, w, &red, Lattice::Grid, first, scratch, r);
@@ -458,7 +466,7 @@ fn directional_green(
             grad[i] = (d[i - step] - d[i + step]).abs();
         }
         for y in r0..r1 {
-            window_sum(&grad[y * w..(y + 1) * w], &mut t[y * w..(y + 1) * w], 2);
+            window_sum::<2>(&grad[y * w..(y + 1) * w], &mut t[y * w..(y + 1) * w]);
         }
         grad[rim * w..(h - rim) * w].fill(0.0);
         for y in rim..h - rim {
@@ -515,6 +523,38 @@ fn transpose(m: &[f32], w: usize, out: &mut [f32]) {
 /// minimised-Laplacian residual interpolation. `green_first(y)`: whether row y's green samples
 /// are at even x.
 fn differences_along_rows(
+    m: &[f32],
+    w: usize,
+    rows_of: std::ops::Range<usize>,
+    green_first: impl Fn(usize) -> bool,
+    out: &mut [f32],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU has AVX, checked just above.
+        return unsafe { differences_along_rows_avx(m, w, rows_of, green_first, out) };
+    }
+    differences_along_rows_body(m, w, rows_of, green_first, out)
+}
+
+/// `differences_along_rows_body` compiled for AVX, as [`residual_fill_avx`]: the fits' row
+/// loops and window sums eight lanes wide, the same operations in the same order.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn differences_along_rows_avx(
+    m: &[f32],
+    w: usize,
+    rows_of: std::ops::Range<usize>,
+    green_first: impl Fn(usize) -> bool,
+    out: &mut [f32],
+) {
+    differences_along_rows_body(m, w, rows_of, green_first, out)
+}
+
+/// [`differences_along_rows`], inlined so that each caller compiles it (and [`fit_along`]) for
+/// its own target features.
+#[inline(always)]
+fn differences_along_rows_body(
     m: &[f32],
     w: usize,
     rows_of: std::ops::Range<usize>,
@@ -587,6 +627,7 @@ const _: () = assert!(DIR_RADIUS % 2 == 1);
 /// a·guide + b over windows of 2·DIR_RADIUS + 1 pixels (the slope minimising the residuals'
 /// Laplacian), the windows' coefficients averaged with weights as in [`residual_fill`] (floored
 /// at [`DIR_FLOOR`]), plus the residuals interpolated linearly.
+#[inline(always)]
 fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut [f32]) {
     let w = v.len();
     out.fill(0.0);
@@ -637,7 +678,7 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
         s[n] = 0.0;
     }
     for (s, d) in stats.iter().zip(sums.iter_mut()) {
-        window_sum(&s[..n], &mut d[..n], HALF);
+        window_sum::<HALF>(&s[..n], &mut d[..n]);
     }
     // A window of `k` samples' slope, offset and weight (as in `residual_fill`) from its sums
     // (in `stats`' order), the first two times the weight.
@@ -679,9 +720,9 @@ fn fit_along(guide: &[f32], v: &[f32], phase: usize, rows: &mut Rows, out: &mut 
             p[1] = *y;
         }
     }
-    window_sum(a, sa, DIR_RADIUS);
-    window_sum(b, sb, DIR_RADIUS);
-    window_sum(u, su, DIR_RADIUS);
+    window_sum::<DIR_RADIUS>(a, sa);
+    window_sum::<DIR_RADIUS>(b, sb);
+    window_sum::<DIR_RADIUS>(u, su);
     let inner = 2 * DIR_RADIUS..w - 2 * DIR_RADIUS;
     let o = &mut out[inner.clone()];
     let (sa, sb, su, g) = (
@@ -903,7 +944,7 @@ fn residual_fill_body(
                     if lw % 2 == 1 {
                         f[lw - 1] = even[k][lw / 2];
                     }
-                    window_sum(f, s, RADIUS);
+                    window_sum::<RADIUS>(f, s);
                 }
             }
             [Some(c), None] | [None, Some(c)] => {
@@ -967,9 +1008,9 @@ fn residual_fill_body(
                 }
             }
         }
-        window_sum(da, wa, RADIUS);
-        window_sum(db, wb, RADIUS);
-        window_sum(dw, ww, RADIUS);
+        window_sum::<RADIUS>(da, wa);
+        window_sum::<RADIUS>(db, wb);
+        window_sum::<RADIUS>(dw, ww);
         let inner = RADIUS..w - 2 * ca - RADIUS;
         let (wa, wb, ww) = (&wa[inner.clone()], &wb[inner.clone()], &ww[inner]);
         let (g, f) = (&row(guide, w, y)[f0..f1], &mut fit[y * w + f0..y * w + f1]);
@@ -1010,19 +1051,45 @@ fn residual_fill_body(
     }
 }
 
-/// Sums of 2·r + 1 neighbours along `row`, into `out` but for `r` at each end. In a fixed
+/// Sums of 2·R + 1 neighbours along `row`, into `out` but for `R` at each end. In a fixed
 /// order rather than as a running sum, whose rounding would depend on where it started: strips
-/// must give the whole frame's values exactly.
+/// must give the whole frame's values exactly. The order is that of adding whole shifted rows
+/// one after another, left to right, but a block of sums is held in registers meanwhile rather
+/// than stored and reloaded at every step: 32 at a time (four independent chains of AVX
+/// additions, so that no addition waits for the one before), then 8, then one.
 #[inline(always)]
-fn window_sum(row: &[f32], out: &mut [f32], r: usize) {
-    let Some(n) = row.len().checked_sub(2 * r) else {
+fn window_sum<const R: usize>(row: &[f32], out: &mut [f32]) {
+    let Some(n) = row.len().checked_sub(2 * R) else {
         return;
     };
-    let out = &mut out[r..r + n];
-    out.copy_from_slice(&row[..n]);
-    for k in 1..=2 * r {
-        out.iter_mut().zip(&row[k..]).for_each(|(o, v)| *o += v);
+    let out = &mut out[R..R + n];
+    let done = sums_in_blocks::<R, 32>(row, out, 0);
+    let done = sums_in_blocks::<R, 8>(row, out, done);
+    sums_in_blocks::<R, 1>(row, out, done);
+}
+
+/// [`window_sum`]'s sums `out[from..]` in whole blocks of `B`, up to the last whole block;
+/// where they stopped.
+#[inline(always)]
+fn sums_in_blocks<const R: usize, const B: usize>(
+    row: &[f32],
+    out: &mut [f32],
+    from: usize,
+) -> usize {
+    let len = out.len();
+    let mut chunks = out[from..].chunks_exact_mut(B);
+    for (c, o) in (&mut chunks).enumerate() {
+        let taps = &row[from + c * B..][..B + 2 * R];
+        let mut s: [f32; B] = std::array::from_fn(|l| taps[l]);
+        for k in 1..=2 * R {
+            let t = &taps[k..k + B];
+            for l in 0..B {
+                s[l] += t[l];
+            }
+        }
+        o.copy_from_slice(&s);
     }
+    len - chunks.into_remainder().len()
 }
 
 #[cfg(test)]
@@ -1050,7 +1117,7 @@ pub(super) mod tests {
             let m = Mosaic::sample(&rgb, order);
             let padded = Padded::new(&m, |v| v);
             let mut ws = Workspace::default();
-            residual_interpolation(&padded.data, padded.width, order, &mut ws);
+            residual_interpolation(&padded.data, padded.width, order, PAD, &mut ws);
             let planes = [&ws.planes[0], &ws.planes[3], &ws.planes[2]];
             let ri = Image::from_fn(w, h, 3, |x, y, c| {
                 planes[c][(y + PAD) * padded.width + x + PAD]

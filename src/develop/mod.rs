@@ -39,6 +39,20 @@ impl BayerOrder {
         };
         cell[y & 1][x & 1]
     }
+
+    /// The order of the pattern read from (x, y) on.
+    pub fn read_from(self, x: usize, y: usize) -> BayerOrder {
+        let orders = [
+            BayerOrder::Bggr,
+            BayerOrder::Gbrg,
+            BayerOrder::Grbg,
+            BayerOrder::Rggb,
+        ];
+        let same = |o: &BayerOrder| {
+            (0..4).all(|k| o.channel(k % 2, k / 2) == self.channel(x + k % 2, y + k / 2))
+        };
+        orders.into_iter().find(same).unwrap_or(self)
+    }
 }
 
 /// A Bayer frame in linear light: 0 at the black level, 1 at the sensor's white (noise may go
